@@ -1,0 +1,57 @@
+# Two commands do all set-up on a fresh Debian machine with Python 3.11: `make demo` and `make test`.
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+export CI ?= true
+export RERUN_ANALYTICS ?= 0
+
+.PHONY: setup demo test lint bench bench-mcpnet bench-cracks bench-lrgnet train screenshot clean
+
+setup: $(STAMP)
+
+# open3d's module needs libusb-1.0 from Debian; torch==2.13.0 takes the local CPU wheel where pip offers one.
+$(STAMP): pyproject.toml
+	@dpkg -s libusb-1.0-0 >/dev/null 2>&1 || { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q libusb-1.0-0; }
+	@[ -x $(BIN)/python ] || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --disable-pip-version-check --upgrade pip
+	$(BIN)/pip install -q --disable-pip-version-check -e '.[dev]'
+	@touch $(STAMP)
+
+demo: setup
+	$(BIN)/aftershock run --save out/demo.rrd --export out/demo --force
+
+test: setup
+	$(BIN)/ruff check .
+	$(BIN)/pytest -q
+
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+bench: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py
+
+bench-mcpnet: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_mcpnet.py
+
+bench-cracks: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_cracks.py
+
+bench-lrgnet: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_lrgnet.py
+
+train: setup
+	$(BIN)/aftershock train mcpnet
+	$(BIN)/aftershock train lrgnet
+	$(BIN)/aftershock train crackembed
+
+# The README picture: the demo recording in Rerun's web viewer, headless (needs Debian's chromium).
+screenshot: demo
+	@command -v chromium >/dev/null || { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q chromium; }
+	$(BIN)/pip install -q -e '.[screenshot]'
+	$(BIN)/python ../shared/tools/rrd_screenshot.py out/demo.rrd docs/demo.png --wait 60
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

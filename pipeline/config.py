@@ -1,0 +1,156 @@
+"""One typed configuration with defaults that work; overridable from a TOML/JSON file and `--set a.b=value`.
+
+Every threshold named in METHODS.md lives here, so a run's settings are one object that can be printed,
+saved next to its results and loaded again.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from pipeline.errors import InputError
+
+
+class Environment(StrEnum):
+    """Indoor and outdoor logs differ in range limits, voxel sizes and clustering threshold."""
+
+    AUTO = "auto"
+    INDOOR = "indoor"
+    OUTDOOR = "outdoor"
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class SourceConfig(_Section):
+    topic: str | None = None
+    pose_topic: str | None = None
+    start_s: float | None = None  # seconds from the log start
+    end_s: float | None = None
+    max_scans: int | None = None
+    every: int = 1
+
+
+class RegisterConfig(_Section):
+    """KISS-ICP settings; None = chosen from the environment (indoor logs need a finer map)."""
+
+    voxel_size_m: float | None = None
+    min_range_m: float | None = None
+    max_range_m: float | None = None
+    deskew: bool = True
+    max_points_per_voxel: int = 20
+    # A frame whose ICP moved it further than this from the constant-velocity prediction is flagged.
+    max_correction_m: float = 1.0
+
+
+class MapConfig(_Section):
+    voxel_size_m: float = 0.1
+    context_cell_m: float = 0.3  # MCPNet context: 3 x 3 x 3 cells of this size around a point
+    context_points: int = 50
+
+
+class LabelConfig(_Section):
+    labeller: str = "mcpnet"  # "mcpnet" or "region-growing" (classical online baseline)
+    environment: Environment = Environment.AUTO
+    indoor_range_m: float = 2.0  # horizontal range kept for labelling, as in the study
+    outdoor_range_m: float = 10.0
+    relabel_old_voxels: bool = False
+    weights: str | None = None  # None = the shipped weights in models/weights
+
+
+class ClusterConfig(_Section):
+    beta_indoor: float = 0.9  # cosine similarity of embeddings needed to link two voxels
+    beta_outdoor: float = 0.92
+    normal_angle_deg: float = 20.0  # region-growing baseline: neighbouring normals within this angle
+    color_distance: float = 0.12  # region-growing baseline: RGB distance in [0, 1] units
+
+
+class RerunConfig(_Section):
+    map_voxel_m: float = 0.1  # the accumulated map shown in the viewer is downsampled to this
+    map_every: int = 10  # re-log the accumulated map every N scans
+    raw_points: bool = True
+    embeddings: bool = True
+
+
+class LRGNetConfig(_Section):
+    voxel_size_m: float = 0.1
+    inliers: int = 512  # I
+    neighbours: int = 512  # J
+    delta_m: float = 0.1  # δ: neighbour set = unlabelled points within this distance of the region
+    max_steps: int = 60
+    min_segment_points: int = 10
+    search: str = "greedy"  # greedy | restart | beam
+    restarts: int = 10
+    beam_width: int = 3
+    beam_expansions: int = 3
+    score: str = "ml"  # ml (summed log-likelihood) | np (number of points)
+    seed: int = 0
+    weights: str | None = None
+
+
+class CrackConfig(_Section):
+    resolution_m: float | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
+    features: str = "crackembed"
+    detector: str = "isolation-forest"
+    neighbourhood_m: float = 0.01
+    severe_width_m: float = 0.0032  # 1/8 inch
+    min_crack_points: int = 20
+    seed: int = 0
+
+
+class DriftConfig(_Section):
+    bin_m: float = 0.05
+    density_ratio: float = 1.5  # a slab bin has 50 % more points than the median of its neighbourhood
+    neighbourhood_bins: int = 10
+    ransac_threshold_m: float = 0.02
+    ransac_iterations: int = 1000
+    gravity: str = "frame-z"  # frame-z | ground-plane
+
+
+class Config(_Section):
+    source: SourceConfig = SourceConfig()
+    registration: RegisterConfig = RegisterConfig()
+    map: MapConfig = MapConfig()
+    label: LabelConfig = LabelConfig()
+    cluster: ClusterConfig = ClusterConfig()
+    rerun: RerunConfig = RerunConfig()
+    lrgnet: LRGNetConfig = LRGNetConfig()
+    cracks: CrackConfig = CrackConfig()
+    drift: DriftConfig = DriftConfig()
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
+    """Defaults, then a TOML or JSON file, then `section.key=value` overrides (values parsed as JSON if they can be)."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise InputError("config file not found", p)
+        try:
+            text = p.read_text()
+            data = json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
+        except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"not a valid {p.suffix.lstrip('.') or 'TOML'} config: {exc}", p) from None
+    for item in overrides or []:
+        key, sep, raw = item.partition("=")
+        if not sep or "." not in key:
+            raise InputError(f"override {item!r} is not of the form section.key=value")
+        try:
+            value: Any = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        section, _, name = key.partition(".")
+        data.setdefault(section, {})[name] = value
+    try:
+        return Config.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(x) for x in first["loc"])
+        raise InputError(f"config {where}: {first['msg']}", path) from None

@@ -1,0 +1,25 @@
+"""Errors a user can cause and fix: the CLI prints them as one line and exits non-zero, without a traceback."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class AftershockError(Exception):
+    """A problem with the user's input or environment, explained in one line."""
+
+    def __init__(self, message: str, path: str | Path | None = None) -> None:
+        self.path = str(path) if path is not None else None
+        super().__init__(f"{path}: {message}" if path is not None else message)
+
+
+class InputError(AftershockError):
+    """The input (log, file, folder, weights) cannot be read as asked."""
+
+
+class OutputError(AftershockError):
+    """An output cannot be written (exists without --force, not writable)."""
+
+
+class DamagedLogWarning(UserWarning):
+    """A log was read up to a damaged part; what came before is valid."""

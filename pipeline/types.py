@@ -1,0 +1,218 @@
+"""The shared vocabulary: small dataclasses over numpy arrays that every stage, source and sink passes.
+
+Conventions (fixed, relied on everywhere):
+- positions in metres, float64 (N, 3); poses are 4 x 4 homogeneous float64 matrices, sensor -> world;
+- `Scan.stamp_ns` is the scan's time in nanoseconds (the message header stamp, else the log time);
+- `Scan.times` are per-point times in seconds *relative to the stamp* (may be negative);
+- class ids follow `pipeline.classes` (65535 = unlabelled); instance id 0 = "no object".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Final
+
+import numpy as np
+
+from pipeline.classes import UNLABELLED
+
+IDENTITY: Final[np.ndarray] = np.eye(4)
+
+
+def _check_len(name: str, arr: np.ndarray | None, n: int) -> None:
+    if arr is not None and len(arr) != n:
+        raise ValueError(f"{name} has {len(arr)} entries for {n} points")
+
+
+@dataclass(slots=True)
+class Scan:
+    """One sweep of a LiDAR as it comes out of a source."""
+
+    stamp_ns: int
+    points: np.ndarray  # (N, 3) float64, sensor frame
+    seq: int = 0
+    frame_id: str = ""
+    intensity: np.ndarray | None = None  # (N,) float32
+    colors: np.ndarray | None = None  # (N, 3) uint8
+    times: np.ndarray | None = None  # (N,) float64 seconds relative to stamp_ns
+    ring: np.ndarray | None = None  # (N,) uint16
+    class_ids: np.ndarray | None = None  # (N,) uint16 ground truth
+    instance_ids: np.ndarray | None = None  # (N,) uint32 ground truth
+    gt_pose: np.ndarray | None = None  # (4, 4) true sensor pose in the world, when the log has it
+    log_time_ns: int | None = None  # when the message was logged (MCAP log time), for viewer alignment
+    topic: str = ""
+
+    def __post_init__(self) -> None:
+        self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
+        n = len(self.points)
+        for name in ("intensity", "colors", "times", "ring", "class_ids", "instance_ids"):
+            _check_len(name, getattr(self, name), n)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @property
+    def stamp_s(self) -> float:
+        return self.stamp_ns * 1e-9
+
+    @property
+    def has_ground_truth(self) -> bool:
+        return self.class_ids is not None and self.instance_ids is not None
+
+    def select(self, mask: np.ndarray) -> Scan:
+        """The same scan restricted to the points of a boolean mask or index array; every per-point array follows."""
+
+        def pick(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[mask]
+
+        return Scan(
+            stamp_ns=self.stamp_ns,
+            points=self.points[mask],
+            seq=self.seq,
+            frame_id=self.frame_id,
+            intensity=pick(self.intensity),
+            colors=pick(self.colors),
+            times=pick(self.times),
+            ring=pick(self.ring),
+            class_ids=pick(self.class_ids),
+            instance_ids=pick(self.instance_ids),
+            gt_pose=self.gt_pose,
+            log_time_ns=self.log_time_ns,
+            topic=self.topic,
+        )
+
+
+@dataclass(slots=True)
+class Labels:
+    """Per-point results of the labelling and clustering stages, aligned with the points they describe."""
+
+    class_ids: np.ndarray  # (N,) uint16, UNLABELLED where not predicted
+    instance_ids: np.ndarray  # (N,) uint32, 0 = no object
+    embeddings: np.ndarray | None = None  # (N, D) float32 unit vectors (MCPNet)
+    scores: np.ndarray | None = None  # (N,) float32 confidence of the class
+
+    @staticmethod
+    def empty(n: int) -> Labels:
+        return Labels(np.full(n, UNLABELLED, np.uint16), np.zeros(n, np.uint32))
+
+
+@dataclass(slots=True)
+class InstanceMerge:
+    """Instances joined by the clustering stage: every id in `merged` now reads as `into`."""
+
+    into: int
+    merged: tuple[int, ...]
+    seq: int
+
+
+@dataclass(slots=True)
+class Frame:
+    """A scan on its way through the stages; each stage fills in its part and records how long it took."""
+
+    scan: Scan
+    pose: np.ndarray | None = None  # (4, 4) estimated sensor pose, world <- sensor (end of sweep)
+    world_points: np.ndarray | None = None  # (N, 3) the deskewed scan in the world frame
+    registration_ok: bool = True
+    registration_note: str = ""
+    keep: np.ndarray | None = None  # (N,) bool, points kept by the range filter for labelling
+    new_voxel_points: np.ndarray | None = None  # indices (into scan points) that opened new map voxels
+    labels: Labels | None = None  # for the points of `scan` (unlabelled where not kept)
+    merges: list[InstanceMerge] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def seq(self) -> int:
+        return self.scan.seq
+
+
+@dataclass(slots=True)
+class LabelledCloud:
+    """A labelled point cloud: the accumulated map, a PLY file, a region of interest."""
+
+    points: np.ndarray  # (N, 3) float64
+    colors: np.ndarray | None = None  # (N, 3) uint8
+    intensity: np.ndarray | None = None  # (N,) float32
+    class_ids: np.ndarray | None = None  # (N,) uint16
+    instance_ids: np.ndarray | None = None  # (N,) uint32
+    normals: np.ndarray | None = None  # (N, 3) float32
+
+    def __post_init__(self) -> None:
+        self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
+        n = len(self.points)
+        for name in ("colors", "intensity", "class_ids", "instance_ids", "normals"):
+            _check_len(name, getattr(self, name), n)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def select(self, mask: np.ndarray) -> LabelledCloud:
+        def pick(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[mask]
+
+        return LabelledCloud(
+            self.points[mask],
+            pick(self.colors),
+            pick(self.intensity),
+            pick(self.class_ids),
+            pick(self.instance_ids),
+            pick(self.normals),
+        )
+
+
+@dataclass(slots=True)
+class Crack:
+    """One crack: a connected group of crack points measured on its own surface plane."""
+
+    instance_id: int
+    center: np.ndarray  # (3,) metres
+    length_m: float
+    width_m: float
+    num_points: int
+    axis: np.ndarray  # (3,) unit direction of the length
+    normal: np.ndarray  # (3,) unit normal of the surface plane
+    severe: bool
+
+
+@dataclass(slots=True)
+class Story:
+    """One floor or ceiling plane and how far it moved against the lowest plane."""
+
+    index: int
+    height_m: float
+    plane: np.ndarray  # (4,) a, b, c, d with unit normal, ax + by + cz + d = 0
+    drift_x_mm: float
+    drift_y_mm: float
+    drift_mm: float
+    tilt_x_deg: float
+    tilt_y_deg: float
+    tilt_deg: float
+    num_points: int
+
+
+@dataclass(slots=True)
+class RunInfo:
+    """What the sinks need to know before the first frame."""
+
+    source: str  # what the user passed
+    source_kind: str  # "mcap", "bag", "files", "sim"
+    topic: str = ""
+    environment: str = "indoor"
+    labeller: str = ""
+    log_start_ns: int | None = None
+
+
+@dataclass(slots=True)
+class RunSummary:
+    """What a finished (or interrupted) run measured; the JSON summary is made from it."""
+
+    scans: int = 0
+    points: int = 0
+    map_voxels: int = 0
+    instances: int = 0
+    instances_per_class: dict[str, int] = field(default_factory=dict)
+    mean_timings_ms: dict[str, float] = field(default_factory=dict)
+    wall_time_s: float = 0.0
+    scans_per_second: float = 0.0
+    registration_failures: list[int] = field(default_factory=list)
+    interrupted: bool = False

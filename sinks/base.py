@@ -1,0 +1,42 @@
+"""The sink interface: sinks are the only code that writes. The stream hands every frame to every sink
+after each stage, and the accumulated map and on-demand results when they are ready."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+import numpy as np
+
+from pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
+
+
+class Stage(StrEnum):
+    RAW = "raw"
+    REGISTERED = "registered"
+    LABELLED = "labelled"
+    CLUSTERED = "clustered"
+
+
+class Sink:
+    """Base class with no-op hooks; a sink overrides the ones it needs. `close` is always called, also on Ctrl-C."""
+
+    def begin(self, info: RunInfo) -> None:
+        """Before the first frame: static layers (annotation context, blueprint, file headers)."""
+
+    def stage(self, frame: Frame, stage: Stage) -> None:
+        """After each stage of each frame."""
+
+    def map_update(self, cloud: LabelledCloud, seq: int) -> None:
+        """The accumulated labelled map as of scan `seq` (sent every few scans, and once at the end)."""
+
+    def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+        """LRGNet's re-segmentation of the map; `steps` = (inlier indices, neighbour indices) of one object's growth."""
+
+    def damage(self, cracks: list[Crack], crack_points: LabelledCloud | None, stories: list[Story]) -> None:
+        """Cracks and story drift/tilt found on the map."""
+
+    def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
+        """After the last frame (also after an interruption), with what was measured."""
+
+    def close(self) -> None:
+        """Flush and release files; must leave valid output even after an interruption."""
