@@ -204,7 +204,7 @@ def decode_records(
     row_step: int,
     big_endian: bool = False,
 ) -> np.ndarray:
-    """The point records of a PointCloud2 as a flat structured array (height * width,), zero-copy when possible."""
+    """The point records of a PointCloud2 as a flat structured array, zero-copy when rows are unpadded."""
     if point_step <= 0:
         raise ValueError(f"point_step is {point_step}")
     dtype = structured_dtype(fields, point_step, big_endian)
@@ -249,7 +249,7 @@ def decode_pointcloud2(msg: Any) -> Cloud:
     return Cloud(records_to_columns(records), int(msg.height), int(msg.width), fields)
 
 
-# --------------------------------------------------------------------------------------------- columns -> Scan parts
+# ---------------------------------------------------------------------------------- columns -> Scan parts
 
 
 def find_time_field(names: Sequence[str]) -> str | None:
@@ -423,7 +423,7 @@ def pose_to_matrix(pose: Any) -> np.ndarray:
 
 
 class _Cdr:
-    """Little-endian CDR writer for the few message types we emit (alignment counted after the 4-byte header)."""
+    """Little-endian CDR writer for the few types we emit (alignment counted after the 4-byte header)."""
 
     def __init__(self) -> None:
         self.parts: list[bytes] = [b"\x00\x01\x00\x00"]
