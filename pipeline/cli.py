@@ -59,7 +59,7 @@ def _register_commands() -> None:
         module.register(app)
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     if issubclass(category, DamagedLogWarning | UserWarning):
         print(f"aftershock: warning: {message}", file=sys.stderr)
     else:

@@ -20,7 +20,7 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def train(
         model: Model = typer.Argument(..., help="Which network to train."),
-        out: Path | None = typer.Option(None, help="Weights file to write (default: the shipped one in models/weights)."),
+        out: Path | None = typer.Option(None, help="Weights file to write (default: the shipped one)."),
         seed: int = typer.Option(0, help="Seed for data generation and training."),
         epochs: int | None = typer.Option(None, help="Override the number of epochs (default: as shipped)."),
         force: bool = typer.Option(False, help="Overwrite an existing weights file."),

@@ -1,0 +1,173 @@
+"""Shared point-cloud geometry: voxel keys and downsampling, neighbourhoods, PCA normals and curvature,
+and the two classical region-growing segmentations (threshold and smoothness constraint).
+
+Everything is vectorised: neighbourhoods come from scipy's cKDTree, covariances are batched, and
+region growing is phrased as connected components over the graph of neighbour pairs that pass the test.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+_CHUNK: Final = 200_000  # points per batch when gathering neighbourhoods, bounds memory
+
+
+def voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """Integer voxel coordinates (N, 3) int64 of each point."""
+    return np.floor(np.asarray(points) / voxel_m).astype(np.int64)
+
+
+def voxel_downsample(points: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """One point per voxel: (indices of the first point of each voxel, in input order; voxel index of every point)."""
+    keys = voxel_keys(points, voxel_m)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[inverse.reshape(-1)]
+
+
+def knn(points: np.ndarray, k: int, tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Distances and indices (N, k) of the k nearest neighbours of every point (itself included)."""
+    tree = tree or cKDTree(points)
+    k = min(k, len(points))
+    dist, idx = tree.query(points, k=k, workers=-1)
+    return dist.reshape(len(points), k), idx.reshape(len(points), k)
+
+
+def radius_pairs(points: np.ndarray, radius_m: float, tree: cKDTree | None = None) -> np.ndarray:
+    """All unordered pairs (P, 2) of points closer than `radius_m`."""
+    tree = tree or cKDTree(points)
+    return tree.query_pairs(radius_m, output_type="ndarray")
+
+
+def pca_normals(
+    points: np.ndarray, k: int = 16, radius_m: float | None = None, tree: cKDTree | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (N, 3) float32 and curvature (N,) float32 = smallest eigenvalue / sum of eigenvalues,
+    from PCA over the k nearest neighbours (restricted to `radius_m` when given; fewer than 3 → curvature 1).
+    Normals are oriented to +z where they are not horizontal, so that flips do not split regions."""
+    pts = np.asarray(points, dtype=np.float64)
+    n = len(pts)
+    normals = np.zeros((n, 3), np.float32)
+    curvature = np.ones(n, np.float32)
+    if n < 3:
+        return normals, curvature
+    tree = tree or cKDTree(pts)
+    kk = min(k, n)
+    for start in range(0, n, _CHUNK):
+        stop = min(n, start + _CHUNK)
+        dist, idx = tree.query(pts[start:stop], k=kk, workers=-1)
+        dist, idx = dist.reshape(-1, kk), idx.reshape(-1, kk)
+        valid = np.ones_like(dist, dtype=bool) if radius_m is None else dist <= radius_m
+        nb = pts[idx]  # (B, k, 3)
+        w = valid[..., None].astype(np.float64)
+        count = w.sum(axis=1)  # (B, 1)
+        mean = (nb * w).sum(axis=1) / np.maximum(count, 1)
+        centred = (nb - mean[:, None, :]) * w
+        cov = np.einsum("bki,bkj->bij", centred, centred) / np.maximum(count, 1)[:, :, None]
+        evals, evecs = np.linalg.eigh(cov)
+        nrm = evecs[:, :, 0]
+        flip = nrm[:, 2] < 0
+        nrm[flip] *= -1
+        normals[start:stop] = nrm
+        total = evals.sum(axis=1)
+        curv = np.where(total > 0, evals[:, 0] / np.where(total > 0, total, 1), 0.0)
+        curv[count[:, 0] < 3] = 1.0
+        curvature[start:stop] = curv
+    return normals, curvature
+
+
+def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return labels
+
+
+def _relabel_by_size(labels: np.ndarray, min_size: int) -> np.ndarray:
+    """Segments as 1..S (largest first); segments smaller than `min_size` become 0."""
+    _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
+    order = np.argsort(-counts, kind="stable")
+    new_id = np.zeros(len(counts), np.int64)
+    big = counts[order] >= min_size
+    new_id[order[big]] = np.arange(1, big.sum() + 1)
+    return new_id[inverse.reshape(-1)]
+
+
+def threshold_region_growing(
+    points: np.ndarray,
+    normals: np.ndarray,
+    colors: np.ndarray | None,
+    radius_m: float,
+    max_angle_deg: float,
+    max_color_dist: float | None,
+    min_size: int = 1,
+) -> np.ndarray:
+    """Region growing on normal and colour thresholds: points within `radius_m` join when their normals
+    differ by less than `max_angle_deg` (sign-agnostic) and their RGB (0..1) differ by less than
+    `max_color_dist`. Returns segment ids 1..S by size; segments under `min_size` points get 0."""
+    pairs = radius_pairs(points, radius_m)
+    n = len(points)
+    if len(pairs) == 0:
+        return _relabel_by_size(np.arange(n), min_size)
+    cos = np.abs(np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]))
+    ok = cos >= np.cos(np.deg2rad(max_angle_deg))
+    if colors is not None and max_color_dist is not None:
+        rgb = np.asarray(colors, np.float32) / 255.0
+        ok &= np.linalg.norm(rgb[pairs[:, 0]] - rgb[pairs[:, 1]], axis=1) < max_color_dist
+    return _relabel_by_size(_components(n, pairs[ok]), min_size)
+
+
+def smoothness_region_growing(
+    points: np.ndarray,
+    normals: np.ndarray,
+    curvature: np.ndarray,
+    k: int = 16,
+    max_angle_deg: float = 10.0,
+    curvature_threshold: float = 0.05,
+    min_size: int = 1,
+) -> np.ndarray:
+    """Smoothness-constraint region growing (Rabbani et al. 2006): regions grow across neighbours whose
+    normals differ by less than `max_angle_deg`, but only points with curvature below the threshold keep
+    growing (act as seeds). Equivalent vectorised form: connected components over smooth points, then each
+    rough point joins the region of its smoothest qualifying neighbour."""
+    pts = np.asarray(points)
+    n = len(pts)
+    _, idx = knn(pts, k + 1)
+    src = np.repeat(np.arange(n), idx.shape[1])
+    dst = idx.reshape(-1)
+    keep = src != dst
+    src, dst = src[keep], dst[keep]
+    cos = np.abs(np.einsum("ij,ij->i", normals[src], normals[dst]))
+    angle_ok = cos >= np.cos(np.deg2rad(max_angle_deg))
+    smooth = curvature < curvature_threshold
+    both = angle_ok & smooth[src] & smooth[dst]
+    labels = _components(n, np.stack([src[both], dst[both]], axis=1))
+    # Rough points attach to the smooth neighbour of lowest curvature that passes the angle test.
+    attach = angle_ok & ~smooth[src] & smooth[dst]
+    if attach.any():
+        s, d = src[attach], dst[attach]
+        order = np.lexsort((curvature[d], s))
+        s, d = s[order], d[order]
+        first = np.r_[True, s[1:] != s[:-1]]
+        labels[s[first]] = labels[d[first]]
+    return _relabel_by_size(labels, min_size)
+
+
+def attach_small_segments(points: np.ndarray, labels: np.ndarray, min_size: int) -> np.ndarray:
+    """Segments with fewer than `min_size` points (and label 0) take the label of the nearest point
+    of a large segment."""
+    labels = np.asarray(labels).copy()
+    _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
+    small = (counts[inverse.reshape(-1)] < min_size) | (labels == 0)
+    if small.all() or not small.any():
+        return labels
+    tree = cKDTree(points[~small])
+    _, nearest = tree.query(points[small], k=1, workers=-1)
+    labels[small] = labels[~small][nearest]
+    return labels
