@@ -1,0 +1,122 @@
+"""Everything that yields `Scan`s: MCAP logs, ROS bags, point-cloud files and the simulator.
+
+    for scan in sources.open("mission.mcap", topic="/ouster/points", every=2):
+        ...
+
+The reader is chosen from the input: `sim://…` URIs go to the simulator, folders with a
+`metadata.yaml` are ROS 2 bags, files are recognised by their first bytes (MCAP, ROS 1 bag) or
+suffix (.pcd, .ply, .bin), other folders and globs are read as point-cloud files in name order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import InputError
+from pipeline.types import Scan
+
+SIM_SCHEME = "sim://"
+
+
+class SourceKind(StrEnum):
+    MCAP = "mcap"
+    BAG = "bag"
+    FILES = "files"
+    SIM = "sim"
+
+
+@dataclass(frozen=True, slots=True)
+class SourceDescription:
+    """What the run command records about its input (`RunInfo.source_kind`, `topic`, `log_start_ns`)."""
+
+    kind: SourceKind
+    topic: str = ""
+    log_start_ns: int | None = None
+
+
+def kind_of(path_or_uri: str | Path) -> SourceKind:
+    """Which reader handles this input; InputError for a missing path or something unreadable."""
+    text = str(path_or_uri)
+    if text.startswith(SIM_SCHEME):
+        return SourceKind.SIM
+    from sources.files import SUFFIXES, is_glob
+
+    if is_glob(text) and not Path(text).exists():
+        return SourceKind.FILES
+    path = Path(text)
+    if not path.exists():
+        raise InputError("no such file or directory", path)
+    if path.is_dir():
+        from sources.bag import is_ros2_bag
+
+        return SourceKind.BAG if is_ros2_bag(path) else SourceKind.FILES
+    from sources.bag import is_ros1_bag
+    from sources.mcap_source import is_mcap
+
+    try:
+        if is_mcap(path):
+            return SourceKind.MCAP
+        if is_ros1_bag(path):
+            return SourceKind.BAG
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror})", path) from None
+    if path.suffix.lower() in SUFFIXES:
+        return SourceKind.FILES
+    if path.suffix.lower() == ".mcap":
+        raise InputError("not an MCAP file (it does not start with the MCAP magic bytes)", path)
+    if path.suffix.lower() == ".bag":
+        raise InputError("not a ROS 1 bag (it does not start with '#ROSBAG V2.0')", path)
+    raise InputError("not an MCAP file, ROS bag or point-cloud file (.pcd, .ply, .bin)", path)
+
+
+def open(path_or_uri: str | Path, **options: Any) -> Iterator[Scan]:
+    """Scans from any supported input. Options (names of `SourceConfig`): topic, pose_topic, start_s,
+    end_s, max_scans, every; plus progress (a bar on stderr). Problems with the input raise InputError
+    here, before the first scan; a log damaged part-way yields what precedes the damage, then warns."""
+    kind = kind_of(path_or_uri)
+    options = {k: v for k, v in options.items() if v is not None}
+    if kind is SourceKind.SIM:
+        from sources.simulated import open_simulated
+
+        return open_simulated(str(path_or_uri), **options)
+    if kind is SourceKind.MCAP:
+        from sources.mcap_source import open_mcap
+
+        return open_mcap(Path(path_or_uri), **options)
+    if kind is SourceKind.BAG:
+        from sources.bag import open_bag
+
+        return open_bag(Path(path_or_uri), **options)
+    from sources.files import open_files
+
+    return open_files(path_or_uri, **options)
+
+
+def describe(path_or_uri: str | Path, topic: str | None = None) -> SourceDescription:
+    """Kind, chosen point-cloud topic and log start of an input, without reading its scans."""
+    kind = kind_of(path_or_uri)
+    if kind is SourceKind.MCAP:
+        from sources.common import choose_topic
+        from sources.mcap_source import read_catalog
+
+        cat = read_catalog(Path(path_or_uri))
+        return SourceDescription(kind, choose_topic(cat.types, topic, path_or_uri), cat.start_ns)
+    if kind is SourceKind.BAG:
+        from sources.bag import read_catalog as read_bag_catalog
+        from sources.common import choose_topic
+
+        bag = read_bag_catalog(Path(path_or_uri))
+        return SourceDescription(kind, choose_topic(bag.types, topic, path_or_uri), bag.start_ns)
+    if kind is SourceKind.FILES:
+        from sources.files import FILES_TOPIC, list_files
+
+        list_files(path_or_uri)
+        return SourceDescription(kind, FILES_TOPIC, 0)
+    return SourceDescription(kind, topic or "")
+
+
+__all__ = ["SourceDescription", "SourceKind", "describe", "kind_of", "open"]

@@ -15,6 +15,8 @@ from typing import Any, Final
 
 import numpy as np
 
+from pipeline.types import Scan
+
 
 class PointFieldType(IntEnum):
     """`sensor_msgs/PointField` datatypes."""
@@ -249,6 +251,11 @@ def decode_pointcloud2(msg: Any) -> Cloud:
     return Cloud(records_to_columns(records), int(msg.height), int(msg.width), fields)
 
 
+def header_stamp_ns(msg: Any) -> int:
+    """The header stamp of a ROS message in ns (0 when unset)."""
+    return stamp_to_ns(msg.header.stamp)
+
+
 # ---------------------------------------------------------------------------------- columns -> Scan parts
 
 
@@ -309,6 +316,91 @@ def colors_from_columns(cols: Mapping[str, np.ndarray]) -> np.ndarray | None:
 def valid_mask(xyz: np.ndarray) -> np.ndarray:
     """Points that are real returns: finite and not all-zero."""
     return np.isfinite(xyz).all(axis=1) & np.any(xyz != 0, axis=1)
+
+
+INTENSITY_FIELDS: Final[tuple[str, ...]] = ("intensity", "i", "signal", "reflectivity")
+RING_FIELDS: Final[tuple[str, ...]] = ("ring", "channel", "line", "laser_id")
+CLASS_FIELD: Final[str] = "class_id"
+INSTANCE_FIELD: Final[str] = "instance_id"
+
+
+class NoXYZError(ValueError):
+    """The cloud has no x, y and z fields."""
+
+
+def _first_component(a: np.ndarray) -> np.ndarray:
+    return a if a.ndim == 1 else a.reshape(len(a), -1)[:, 0]
+
+
+def _pick(cols: Mapping[str, np.ndarray], names: Sequence[str]) -> np.ndarray | None:
+    lower = {k.lower(): k for k in cols}
+    for n in names:
+        if n in lower:
+            return _first_component(cols[lower[n]])
+    return None
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """Nanoseconds of a ROS 1 / ROS 2 / rosbags / protobuf time object."""
+    if hasattr(stamp, "to_nsec"):
+        return int(stamp.to_nsec())
+    if hasattr(stamp, "nanosec"):
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    if hasattr(stamp, "nsecs"):
+        return int(stamp.secs) * 1_000_000_000 + int(stamp.nsecs)
+    if hasattr(stamp, "nanos"):
+        return int(stamp.seconds) * 1_000_000_000 + int(stamp.nanos)
+    return int(stamp)
+
+
+def columns_to_scan(
+    cols: Mapping[str, np.ndarray],
+    *,
+    stamp_ns: int,
+    seq: int = 0,
+    frame_id: str = "",
+    topic: str = "",
+    log_time_ns: int | None = None,
+) -> Scan | None:
+    """A `Scan` of the valid points of decoded columns, every per-point array filtered alike; None if none is valid.
+
+    Raises `NoXYZError` when the cloud has no x/y/z.
+    """
+    lower = {k.lower(): k for k in cols}
+    if not all(a in lower for a in ("x", "y", "z")):
+        raise NoXYZError(f"point cloud has no x/y/z fields (fields: {', '.join(cols) or 'none'})")
+    xyz = np.stack([_first_component(cols[lower[a]]) for a in ("x", "y", "z")], axis=1).astype(np.float64)
+    keep = valid_mask(xyz)
+    if not keep.any():
+        return None
+    everything = bool(keep.all())
+
+    def sel(a: np.ndarray | None, dtype: Any) -> np.ndarray | None:
+        if a is None:
+            return None
+        a = a if everything else a[keep]
+        return a.astype(dtype, copy=False)
+
+    time_name = find_time_field(list(cols))
+    times = None
+    if time_name is not None:
+        raw = _first_component(cols[time_name])
+        times = times_relative_s(raw if everything else raw[keep], time_name, stamp_ns)
+    colors = colors_from_columns(cols)
+    return Scan(
+        stamp_ns=int(stamp_ns),
+        points=xyz if everything else xyz[keep],
+        seq=seq,
+        frame_id=frame_id,
+        intensity=sel(_pick(cols, INTENSITY_FIELDS), np.float32),
+        colors=sel(colors, np.uint8),
+        times=times,
+        ring=sel(_pick(cols, RING_FIELDS), np.uint16),
+        class_ids=sel(_pick(cols, (CLASS_FIELD,)), np.uint16),
+        instance_ids=sel(_pick(cols, (INSTANCE_FIELD,)), np.uint32),
+        log_time_ns=log_time_ns,
+        topic=topic,
+    )
 
 
 # --------------------------------------------------------------------------------------------- encoding

@@ -1,0 +1,39 @@
+"""A progress bar on stderr for commands that walk a whole log; silent when stderr is not a terminal or with --quiet."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable, Iterator
+from typing import TypeVar
+
+from tqdm import tqdm
+
+T = TypeVar("T")
+
+
+def enabled(quiet: bool = False) -> bool:
+    """Whether a bar should be drawn: stderr is a terminal and the user did not ask for quiet."""
+    return not quiet and sys.stderr.isatty()
+
+
+def bar(total: int | None = None, desc: str = "", unit: str = "scan", *, show: bool | None = None) -> tqdm:
+    """A tqdm bar on stderr; `show=None` decides by `enabled()`. Use as a context manager, `.update(n)`."""
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit=unit,
+        file=sys.stderr,
+        disable=not (enabled() if show is None else show),
+        dynamic_ncols=True,
+        leave=False,
+    )
+
+
+def track(
+    items: Iterable[T], total: int | None = None, desc: str = "", unit: str = "scan", *, show: bool | None = None
+) -> Iterator[T]:
+    """Iterate `items` with a bar that closes when the iteration ends or is abandoned."""
+    with bar(total, desc, unit, show=show) as b:
+        for item in items:
+            yield item
+            b.update(1)

@@ -1,0 +1,272 @@
+"""What every log reader shares: topic choice, the time window, every-N / max-scans, ground-truth poses.
+
+A reader turns its log into a stream of events (`CloudMessage`, `PoseMessage`, `Damage`) in log-time
+order; `assemble` turns those into `Scan`s, decoding only the clouds it keeps.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from pipeline.errors import DamagedLogWarning, InputError
+from pipeline.progress import bar
+from pipeline.types import Scan
+from sources.pointcloud2 import NoXYZError, columns_to_scan
+
+POINTCLOUD_TYPES: Final[frozenset[str]] = frozenset(
+    {"sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2", "foxglove.PointCloud"}
+)
+POSE_TYPES: Final[frozenset[str]] = frozenset({"geometry_msgs/msg/PoseStamped", "geometry_msgs/PoseStamped"})
+
+# Ground-truth pose at a scan stamp: interpolated between poses at most this far apart, else the nearest
+# pose if it is this close; scans wait at most POSE_WAIT_S of log time for the pose after their stamp.
+POSE_MAX_GAP_S: Final[float] = 1.0
+POSE_TOLERANCE_S: Final[float] = 0.05
+POSE_WAIT_S: Final[float] = 2.0
+_POSE_HISTORY: Final[int] = 256
+
+
+@dataclass(slots=True)
+class DecodedCloud:
+    columns: dict[str, np.ndarray]
+    stamp_ns: int  # header stamp, 0 if the message has none
+    frame_id: str
+
+
+@dataclass(slots=True)
+class CloudMessage:
+    """A point-cloud message, decoded only if kept (`decode` is called at most once)."""
+
+    log_time_ns: int
+    topic: str
+    decode: Callable[[], DecodedCloud]
+
+
+@dataclass(slots=True)
+class PoseMessage:
+    log_time_ns: int
+    stamp_ns: int
+    matrix: np.ndarray
+
+
+@dataclass(slots=True)
+class Damage:
+    """The log cannot be read past this point."""
+
+    reason: str
+
+
+Event = CloudMessage | PoseMessage | Damage
+
+
+# --------------------------------------------------------------------------------------------- topics
+
+
+def choose_topic(types: Mapping[str, str], topic: str | None, path: str | Path) -> str:
+    """The point-cloud topic to read: the one asked for, else the only one; a clear error otherwise."""
+    clouds = sorted(t for t, ty in types.items() if ty in POINTCLOUD_TYPES)
+    listing = ", ".join(clouds) if clouds else "none"
+    if topic is not None:
+        if topic not in types:
+            raise InputError(f"no topic {topic!r} in the log; point-cloud topics: {listing}", path)
+        if types[topic] not in POINTCLOUD_TYPES:
+            raise InputError(
+                f"topic {topic} carries {types[topic]}, not a point cloud; point-cloud topics: {listing}", path
+            )
+        return topic
+    if not clouds:
+        seen = ", ".join(f"{t} ({ty})" for t, ty in sorted(types.items())) or "no topics at all"
+        raise InputError(f"no point-cloud topic (PointCloud2 or foxglove.PointCloud) in the log; it has {seen}", path)
+    if len(clouds) > 1:
+        raise InputError(f"{len(clouds)} point-cloud topics ({listing}); choose one with --topic", path)
+    return clouds[0]
+
+
+def choose_pose_topic(types: Mapping[str, str], pose_topic: str | None, path: str | Path) -> str | None:
+    """The ground-truth PoseStamped topic: the one asked for, else the only one, else none."""
+    poses = sorted(t for t, ty in types.items() if ty in POSE_TYPES)
+    if pose_topic is not None:
+        if types.get(pose_topic) not in POSE_TYPES:
+            listing = ", ".join(poses) or "none"
+            raise InputError(f"no PoseStamped topic {pose_topic!r}; PoseStamped topics: {listing}", path)
+        return pose_topic
+    return poses[0] if len(poses) == 1 else None
+
+
+def window_ns(log_start_ns: int | None, start_s: float | None, end_s: float | None) -> tuple[int | None, int | None]:
+    """[lo, hi) log-time bounds in ns for a window given in seconds from the log start."""
+    if log_start_ns is None:
+        return None, None
+    lo = None if start_s is None else log_start_ns + round(start_s * 1e9)
+    hi = None if end_s is None else log_start_ns + round(end_s * 1e9)
+    return lo, hi
+
+
+def check_window(start_s: float | None, end_s: float | None, every: int, max_scans: int | None) -> None:
+    if every < 1:
+        raise InputError(f"--every must be at least 1, not {every}")
+    if max_scans is not None and max_scans < 1:
+        raise InputError(f"--max-scans must be at least 1, not {max_scans}")
+    if start_s is not None and end_s is not None and end_s < start_s:
+        raise InputError(f"--end ({end_s} s) comes before --start ({start_s} s)")
+
+
+# --------------------------------------------------------------------------------------------- poses
+
+
+def _slerp(m0: np.ndarray, m1: np.ndarray, w: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation, Slerp
+
+    rots = Rotation.from_matrix(np.stack([m0[:3, :3], m1[:3, :3]]))
+    out = np.eye(4)
+    out[:3, :3] = Slerp([0.0, 1.0], rots)([w]).as_matrix()[0]
+    out[:3, 3] = (1 - w) * m0[:3, 3] + w * m1[:3, 3]
+    return out
+
+
+class PoseTrack:
+    """Recent ground-truth poses; the pose at a stamp by interpolation or the nearest within tolerance."""
+
+    def __init__(self) -> None:
+        self.stamps: deque[int] = deque(maxlen=_POSE_HISTORY)
+        self.poses: deque[np.ndarray] = deque(maxlen=_POSE_HISTORY)
+
+    def add(self, stamp_ns: int, matrix: np.ndarray) -> None:
+        if self.stamps and stamp_ns < self.stamps[-1]:  # out of order: keep the deque sorted
+            items = sorted([*zip(self.stamps, self.poses, strict=True), (stamp_ns, matrix)], key=lambda x: x[0])
+            self.stamps = deque((s for s, _ in items), maxlen=_POSE_HISTORY)
+            self.poses = deque((p for _, p in items), maxlen=_POSE_HISTORY)
+            return
+        self.stamps.append(stamp_ns)
+        self.poses.append(matrix)
+
+    @property
+    def latest_ns(self) -> int | None:
+        return self.stamps[-1] if self.stamps else None
+
+    def at(self, stamp_ns: int) -> np.ndarray | None:
+        if not self.stamps:
+            return None
+        stamps = np.fromiter(self.stamps, dtype=np.int64, count=len(self.stamps))
+        i = int(np.searchsorted(stamps, stamp_ns))
+        if i < len(stamps) and stamps[i] == stamp_ns:
+            return self.poses[i].copy()
+        if 0 < i < len(stamps) and (stamps[i] - stamps[i - 1]) * 1e-9 <= POSE_MAX_GAP_S:
+            w = (stamp_ns - stamps[i - 1]) / (stamps[i] - stamps[i - 1])
+            return _slerp(self.poses[i - 1], self.poses[i], float(w))
+        near = [j for j in (i - 1, i) if 0 <= j < len(stamps)]
+        j = min(near, key=lambda k: abs(int(stamps[k]) - stamp_ns))
+        return self.poses[j].copy() if abs(int(stamps[j]) - stamp_ns) * 1e-9 <= POSE_TOLERANCE_S else None
+
+
+# --------------------------------------------------------------------------------------------- assembling scans
+
+
+def assemble(
+    events: Iterable[Event],
+    *,
+    path: str | Path,
+    topic: str,
+    with_poses: bool,
+    every: int = 1,
+    max_scans: int | None = None,
+    total: int | None = None,
+    progress: bool = False,
+) -> Iterator[Scan]:
+    """Scans from a reader's events: keep every `every`-th cloud, decode it, drop invalid points,
+    attach the ground-truth pose, number the scans, stop after `max_scans`; warn at damage."""
+    check_window(None, None, every, max_scans)
+    pending: deque[Scan] = deque()  # decoded scans waiting for the pose after their stamp
+    track = PoseTrack()
+    clouds = 0
+    empty = 0
+    seq = 0
+    damage: str | None = None
+    if total is not None:
+        total = -(-total // every) if max_scans is None else min(-(-total // every), max_scans)
+
+    def finish(scan: Scan) -> Scan:
+        nonlocal seq
+        if with_poses:
+            scan.gt_pose = track.at(scan.stamp_ns)
+        scan.seq = seq
+        seq += 1
+        return scan
+
+    with bar(total, desc=Path(str(path)).name, show=progress) as pbar:
+        for ev in events:
+            if isinstance(ev, Damage):
+                damage = ev.reason
+                break
+            if isinstance(ev, PoseMessage):
+                track.add(ev.stamp_ns, ev.matrix)
+                while pending and pending[0].stamp_ns <= ev.stamp_ns:
+                    yield finish(pending.popleft())
+                    pbar.update(1)
+                    if max_scans is not None and seq >= max_scans:
+                        return
+                continue
+            clouds += 1
+            if (clouds - 1) % every:
+                continue
+            scan = _decode(ev, path)
+            if scan is None:
+                empty += 1
+                continue
+            if with_poses:
+                pending.append(scan)
+                horizon = ev.log_time_ns - round(POSE_WAIT_S * 1e9)
+                while pending and (pending[0].log_time_ns or 0) < horizon:
+                    yield finish(pending.popleft())
+                    pbar.update(1)
+                    if max_scans is not None and seq >= max_scans:
+                        return
+            else:
+                yield finish(scan)
+                pbar.update(1)
+            if max_scans is not None and seq >= max_scans:
+                return
+        while pending and (max_scans is None or seq < max_scans):
+            yield finish(pending.popleft())
+            pbar.update(1)
+    if damage is not None:
+        warnings.warn(DamagedLogWarning(f"{path}: {damage}; read {seq} complete scans before the damage"), stacklevel=2)
+    if seq == 0 and empty:
+        raise InputError(f"every point of every scan on {topic} is invalid (NaN or zero)", path)
+    if empty:
+        warnings.warn(
+            DamagedLogWarning(f"{path}: skipped {empty} scans on {topic} without a valid point"), stacklevel=2
+        )
+
+
+def _decode(ev: CloudMessage, path: str | Path) -> Scan | None:
+    try:
+        cloud = ev.decode()
+        return columns_to_scan(
+            cloud.columns,
+            stamp_ns=cloud.stamp_ns or ev.log_time_ns,
+            frame_id=cloud.frame_id,
+            topic=ev.topic,
+            log_time_ns=ev.log_time_ns,
+        )
+    except NoXYZError as exc:
+        raise InputError(f"{ev.topic}: {exc}", path) from None
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise InputError(
+            f"{ev.topic}: cannot decode the point cloud logged at {ev.log_time_ns} ns: {exc}", path
+        ) from None
+
+
+def message_attr(msg: Any, *names: str, default: Any = None) -> Any:
+    """The first attribute of `msg` that exists among `names`."""
+    for n in names:
+        if hasattr(msg, n):
+            return getattr(msg, n)
+    return default

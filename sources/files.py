@@ -1,0 +1,238 @@
+"""Scans from point-cloud files: a folder or glob of `.pcd`, `.ply` and KITTI `.bin`, read in name order.
+
+Files carry no time: scan k is stamped k * FILE_PERIOD_NS (a 10 Hz sensor), which is also the time
+`--start/--end` refer to.
+"""
+
+from __future__ import annotations
+
+import glob
+import re
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.types import Scan
+from sources.common import CloudMessage, DecodedCloud, Event, assemble, check_window, window_ns
+
+SUFFIXES: Final[tuple[str, ...]] = (".pcd", ".ply", ".bin")
+FILE_PERIOD_NS: Final[int] = 100_000_000
+FILES_TOPIC: Final[str] = "files"
+KITTI_FIELDS: Final[tuple[str, ...]] = ("x", "y", "z", "intensity")
+_PCD_TYPES: Final[dict[tuple[str, int], str]] = {
+    ("F", 4): "f4",
+    ("F", 8): "f8",
+    ("U", 1): "u1",
+    ("U", 2): "u2",
+    ("U", 4): "u4",
+    ("U", 8): "u8",
+    ("I", 1): "i1",
+    ("I", 2): "i2",
+    ("I", 4): "i4",
+    ("I", 8): "i8",
+}
+
+
+def is_glob(text: str) -> bool:
+    return any(c in text for c in "*?[")
+
+
+def _natural_key(p: Path) -> list[int | str]:
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", p.name)]
+
+
+def list_files(path_or_glob: str | Path) -> list[Path]:
+    """The readable point-cloud files of a folder, a glob or a single file, in (natural) name order."""
+    text = str(path_or_glob)
+    if is_glob(text):
+        found = [Path(p) for p in glob.glob(text) if Path(p).is_file()]
+    else:
+        p = Path(text)
+        found = [p] if p.is_file() else [q for q in p.iterdir() if q.is_file()]
+    files = sorted((f for f in found if f.suffix.lower() in SUFFIXES), key=_natural_key)
+    if not files:
+        raise InputError("nothing readable here: no .mcap, ROS bag, .pcd, .ply or KITTI .bin files", path_or_glob)
+    return files
+
+
+# --------------------------------------------------------------------------------------------- PCD
+
+
+def lzf_decompress(src: bytes, size: int) -> bytes:
+    """LZF decompression (PCD `binary_compressed`): one step per literal run or back reference."""
+    out = bytearray(size)
+    i = o = 0
+    n = len(src)
+    while i < n:
+        ctrl = src[i]
+        i += 1
+        if ctrl < 32:
+            length = ctrl + 1
+            out[o : o + length] = src[i : i + length]
+            i += length
+        else:
+            length = ctrl >> 5
+            if length == 7:
+                length += src[i]
+                i += 1
+            length += 2
+            ref = o - ((ctrl & 0x1F) << 8) - src[i] - 1
+            i += 1
+            if ref < 0:
+                raise ValueError("corrupt LZF data (reference before the start)")
+            if ref + length <= o:
+                out[o : o + length] = out[ref : ref + length]
+            else:  # overlapping copy repeats the pattern between ref and o
+                pattern = bytes(out[ref:o])
+                out[o : o + length] = (pattern * (length // len(pattern) + 1))[:length]
+        o += length
+        if o > size:
+            raise ValueError("corrupt LZF data (output longer than announced)")
+    if o != size:
+        raise ValueError(f"corrupt LZF data ({o} of {size} bytes)")
+    return bytes(out)
+
+
+def read_pcd(path: Path) -> dict[str, np.ndarray]:
+    """Columns of a PCD file (ascii, binary or binary_compressed); `_` padding fields are skipped."""
+    raw = path.read_bytes()
+    header: dict[str, list[str]] = {}
+    pos = 0
+    while True:
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise InputError("not a PCD file: the header has no DATA line", path)
+        line = raw[pos:end].decode("ascii", "replace").strip()
+        pos = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        header[key.upper()] = values
+        if key.upper() == "DATA":
+            break
+    try:
+        names = header["FIELDS"]
+        sizes = [int(s) for s in header["SIZE"]]
+        types = [t.upper() for t in header["TYPE"]]
+        counts = [int(c) for c in header.get("COUNT", ["1"] * len(names))]
+        n = int(header["POINTS"][0]) if "POINTS" in header else int(header["WIDTH"][0]) * int(header["HEIGHT"][0])
+        kind = header["DATA"][0].lower()
+        bases = [np.dtype("<" + _PCD_TYPES[(t, s)]) for t, s in zip(types, sizes, strict=True)]
+    except (KeyError, ValueError, IndexError) as exc:
+        raise InputError(f"not a valid PCD header ({exc})", path) from None
+    if not (len(names) == len(sizes) == len(types) == len(counts)):
+        raise InputError("PCD header: FIELDS, SIZE, TYPE and COUNT differ in length", path)
+    body = raw[pos:]
+    cols: dict[str, np.ndarray] = {}
+    try:
+        if kind == "ascii":
+            table = np.loadtxt(body.decode("ascii").splitlines(), dtype=np.float64, ndmin=2)[:n]
+            start = 0
+            for name, base, c in zip(names, bases, counts, strict=True):
+                cols[name] = table[:, start : start + c].astype(base).reshape(n, c).squeeze(axis=1 if c == 1 else None)
+                start += c
+            if "rgb" in cols or "rgba" in cols:  # ascii rgb is the float32 bit pattern written as a number
+                key = "rgb" if "rgb" in cols else "rgba"
+                cols[key] = cols[key].astype(np.float32)
+        elif kind == "binary":
+            layout = [
+                (f"_{i}" if name == "_" else name, base, (c,)) if c > 1 else (f"_{i}" if name == "_" else name, base)
+                for i, (name, base, c) in enumerate(zip(names, bases, counts, strict=True))
+            ]
+            rec = np.frombuffer(body, dtype=np.dtype(layout), count=n)
+            cols = {name: rec[name].copy() for name in rec.dtype.names if not name.startswith("_")}
+        elif kind == "binary_compressed":
+            packed, size = struct.unpack_from("<II", body)
+            data = lzf_decompress(body[8 : 8 + packed], size)
+            start = 0
+            for name, base, c in zip(names, bases, counts, strict=True):  # field-major layout
+                nbytes = base.itemsize * c * n
+                arr = np.frombuffer(data, dtype=base, count=c * n, offset=start).reshape(n, c)
+                start += nbytes
+                if name != "_":
+                    cols[name] = arr[:, 0].copy() if c == 1 else arr.copy()
+        else:
+            raise InputError(f"PCD DATA {kind!r} is not ascii, binary or binary_compressed", path)
+    except (ValueError, struct.error) as exc:
+        raise InputError(f"PCD data is damaged or shorter than the header says ({exc})", path) from None
+    return cols
+
+
+# --------------------------------------------------------------------------------------------- PLY, KITTI
+
+
+def read_ply(path: Path) -> dict[str, np.ndarray]:
+    from plyfile import PlyData, PlyParseError
+
+    try:
+        vertex = PlyData.read(str(path))["vertex"].data
+    except (PlyParseError, KeyError, ValueError, EOFError) as exc:
+        raise InputError(f"not a readable PLY point cloud ({exc})", path) from None
+    return {name: np.asarray(vertex[name]) for name in vertex.dtype.names}
+
+
+def read_kitti_bin(path: Path) -> dict[str, np.ndarray]:
+    size = path.stat().st_size
+    if size % 16:
+        raise InputError(f"not a KITTI .bin scan: {size} bytes is not a multiple of 16 (x y z intensity float32)", path)
+    data = np.fromfile(path, dtype="<f4").reshape(-1, 4)
+    return {name: data[:, i] for i, name in enumerate(KITTI_FIELDS)}
+
+
+def read_file(path: Path) -> dict[str, np.ndarray]:
+    """Columns of one point-cloud file, by its suffix."""
+    suffix = path.suffix.lower()
+    if suffix == ".pcd":
+        return read_pcd(path)
+    if suffix == ".ply":
+        return read_ply(path)
+    if suffix == ".bin":
+        return read_kitti_bin(path)
+    raise InputError(f"unknown point-cloud file type {suffix!r}", path)
+
+
+def _events(files: list[Path], lo: int | None, hi: int | None) -> Iterator[Event]:
+    for k, f in enumerate(files):
+        t = k * FILE_PERIOD_NS
+        if (lo is not None and t < lo) or (hi is not None and t >= hi):
+            continue
+        yield CloudMessage(t, FILES_TOPIC, lambda f=f, t=t: _decode_file(f, t))
+
+
+def _decode_file(path: Path, stamp_ns: int) -> DecodedCloud:
+    cols = read_file(path)
+    if not {"x", "y", "z"} <= {k.lower() for k in cols}:
+        raise InputError(f"no x/y/z fields (fields: {', '.join(cols) or 'none'})", path)
+    return DecodedCloud(cols, stamp_ns, "")
+
+
+def open_files(
+    path: str | Path,
+    *,
+    topic: str | None = None,
+    pose_topic: str | None = None,
+    start_s: float | None = None,
+    end_s: float | None = None,
+    max_scans: int | None = None,
+    every: int = 1,
+    progress: bool = False,
+) -> Iterator[Scan]:
+    """Scans from a folder, glob or single point-cloud file. `topic`/`pose_topic` do not apply to files."""
+    del topic, pose_topic
+    check_window(start_s, end_s, every, max_scans)
+    files = list_files(path)
+    lo, hi = window_ns(0, start_s, end_s)
+    return assemble(
+        _events(files, lo, hi),
+        path=path,
+        topic=FILES_TOPIC,
+        with_poses=False,
+        every=every,
+        max_scans=max_scans,
+        total=len(files) if lo is None and hi is None else None,
+        progress=progress,
+    )

@@ -1,0 +1,285 @@
+"""Scans from MCAP files: ROS 2 and ROS 1 PointCloud2, foxglove.PointCloud, ground-truth PoseStamped.
+
+An indexed file is read chunk by chunk through its summary (only the chunks holding the wanted topics
+and time window). A file without a usable summary — a recording cut off mid-write — is read as a plain
+stream up to the damage: every complete message before it is used, then a `DamagedLogWarning`.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import IO, Any, Final
+
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from pipeline.errors import InputError
+from pipeline.progress import bar
+from pipeline.types import Scan
+from sources.common import (
+    CloudMessage,
+    Damage,
+    DecodedCloud,
+    Event,
+    PoseMessage,
+    assemble,
+    check_window,
+    choose_pose_topic,
+    choose_topic,
+    window_ns,
+)
+from sources.foxglove import decode_foxglove_pointcloud
+from sources.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
+
+MCAP_MAGIC: Final[bytes] = b"\x89MCAP0\r\n"
+_RECORD_LIMIT: Final[int] = 1 << 30  # a record larger than 1 GiB in a LiDAR log means a corrupt length
+
+
+def _damage_errors() -> tuple[type[BaseException], ...]:
+    errors: list[type[BaseException]] = [McapError, struct.error, EOFError, ValueError, KeyError, IndexError]
+    try:
+        import zstandard
+
+        errors.append(zstandard.ZstdError)
+    except ImportError:  # pragma: no cover - mcap depends on it
+        pass
+    try:
+        import lz4.frame
+
+        errors.append(RuntimeError)  # lz4 reports corrupt frames as RuntimeError
+        del lz4
+    except ImportError:
+        pass
+    return tuple(errors)
+
+
+DAMAGE_ERRORS: Final[tuple[type[BaseException], ...]] = _damage_errors()
+
+
+def is_mcap(path: Path) -> bool:
+    with path.open("rb") as fh:
+        return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+@dataclass(slots=True)
+class TopicInfo:
+    name: str
+    type: str  # schema name, e.g. sensor_msgs/msg/PointCloud2
+    count: int = 0
+    encoding: str = ""  # message encoding: cdr, ros1, protobuf
+
+
+@dataclass(slots=True)
+class McapCatalog:
+    """What is in an MCAP file, from its summary or (unindexed or damaged files) from one pass over it."""
+
+    path: Path
+    topics: dict[str, TopicInfo] = field(default_factory=dict)
+    start_ns: int | None = None
+    end_ns: int | None = None
+    indexed: bool = False
+    damage: str | None = None
+    profile: str = ""
+
+    @property
+    def types(self) -> dict[str, str]:
+        return {name: t.type for name, t in self.topics.items()}
+
+    @property
+    def duration_s(self) -> float:
+        return 0.0 if self.start_ns is None or self.end_ns is None else (self.end_ns - self.start_ns) * 1e-9
+
+
+def _add_topic(cat: McapCatalog, channel: Channel, schema: Schema | None, count: int) -> None:
+    info = cat.topics.get(channel.topic)
+    if info is None:
+        name = schema.name if schema is not None else "(no schema)"
+        cat.topics[channel.topic] = TopicInfo(channel.topic, name, count, channel.message_encoding)
+    else:  # several channels on one topic (a ROS 1 recorder does this): counts add up
+        info.count += count
+
+
+def _tail_is_magic(fh: IO[bytes]) -> bool:
+    fh.seek(0, 2)
+    if fh.tell() < 2 * len(MCAP_MAGIC):
+        return False
+    fh.seek(-len(MCAP_MAGIC), 2)
+    return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+def read_catalog(path: Path, progress: bool = False) -> McapCatalog:
+    """Topics, types, counts and time span of an MCAP file; raises InputError if it is not one."""
+    if not is_mcap(path):
+        raise InputError("not an MCAP file (it does not start with the MCAP magic bytes)", path)
+    cat = McapCatalog(path)
+    with path.open("rb") as fh:
+        summary = None
+        if _tail_is_magic(fh):
+            try:
+                summary = SeekingReader(fh, record_size_limit=_RECORD_LIMIT).get_summary()
+                fh.seek(0)
+                cat.profile = SeekingReader(fh, record_size_limit=_RECORD_LIMIT).get_header().profile
+            except DAMAGE_ERRORS:
+                summary = None
+        if summary is not None and summary.statistics is not None and summary.chunk_indexes:
+            cat.indexed = True
+            counts = summary.statistics.channel_message_counts
+            for cid, channel in summary.channels.items():
+                _add_topic(cat, channel, summary.schemas.get(channel.schema_id), counts.get(cid, 0))
+            if summary.statistics.message_count:
+                cat.start_ns = summary.statistics.message_start_time
+                cat.end_ns = summary.statistics.message_end_time
+            return cat
+        fh.seek(0)
+        _scan_stream(fh, cat, progress)
+    return cat
+
+
+def _scan_stream(fh: IO[bytes], cat: McapCatalog, progress: bool) -> None:
+    """Fill a catalog by reading every record up to the end or the damage."""
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    counts: dict[int, int] = {}
+    size = fh.seek(0, 2)
+    fh.seek(0)
+    try:
+        with bar(size, desc=f"{cat.path.name} (no index)", unit="B", show=progress) as pbar:
+            last = 0
+            for record in StreamReader(fh, skip_magic=False, record_size_limit=_RECORD_LIMIT).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
+                    t = record.log_time
+                    cat.start_ns = t if cat.start_ns is None else min(cat.start_ns, t)
+                    cat.end_ns = t if cat.end_ns is None else max(cat.end_ns, t)
+                    pos = fh.tell()
+                    pbar.update(pos - last)
+                    last = pos
+                elif hasattr(record, "profile"):
+                    cat.profile = record.profile
+    except DAMAGE_ERRORS as exc:
+        cat.damage = f"the log is cut off or damaged at byte {fh.tell()} of {size} ({type(exc).__name__}: {exc})"
+    for cid, channel in channels.items():
+        _add_topic(cat, channel, schemas.get(channel.schema_id), counts.get(cid, 0))
+
+
+# --------------------------------------------------------------------------------------------- messages
+
+
+class _Decoders:
+    """Message decoders per schema, from the mcap support libraries (ROS 2 CDR, ROS 1, protobuf)."""
+
+    def __init__(self) -> None:
+        self._cache: dict[int, Callable[[bytes], Any]] = {}
+
+    def get(self, schema: Schema | None, channel: Channel) -> Callable[[bytes], Any]:
+        if schema is None:
+            raise InputError(f"topic {channel.topic} has no schema, its messages cannot be decoded")
+        fn = self._cache.get(schema.id)
+        if fn is None:
+            if schema.encoding == "ros2msg":
+                from mcap_ros2.decoder import DecoderFactory
+            elif schema.encoding == "ros1msg":
+                from mcap_ros1.decoder import DecoderFactory  # type: ignore[no-redef]
+            elif schema.encoding == "protobuf":
+                from mcap_protobuf.decoder import DecoderFactory  # type: ignore[no-redef]
+            else:
+                raise InputError(f"topic {channel.topic}: unsupported schema encoding {schema.encoding!r}")
+            decoder = DecoderFactory().decoder_for(channel.message_encoding, schema)
+            if decoder is None:
+                raise InputError(
+                    f"topic {channel.topic}: no decoder for {channel.message_encoding!r} messages of {schema.name}"
+                )
+            fn = self._cache[schema.id] = decoder
+        return fn
+
+
+def _decode_cloud(decoder: Callable[[bytes], Any], data: bytes, schema_name: str) -> DecodedCloud:
+    msg = decoder(data)
+    if schema_name == "foxglove.PointCloud":
+        return decode_foxglove_pointcloud(msg)
+    return DecodedCloud(decode_pointcloud2(msg).columns, header_stamp_ns(msg), str(msg.header.frame_id))
+
+
+def _stream_messages(
+    fh: IO[bytes], topics: set[str], lo: int | None, hi: int | None
+) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    for record in StreamReader(fh, skip_magic=False, record_size_limit=_RECORD_LIMIT).records:
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            channel = channels.get(record.channel_id)
+            if channel is None or channel.topic not in topics:
+                continue
+            if (lo is not None and record.log_time < lo) or (hi is not None and record.log_time >= hi):
+                continue
+            yield schemas.get(channel.schema_id), channel, record
+
+
+def _events(cat: McapCatalog, topic: str, pose_topic: str | None, lo: int | None, hi: int | None) -> Iterator[Event]:
+    decoders = _Decoders()
+    topics = {topic} | ({pose_topic} if pose_topic else set())
+    with cat.path.open("rb") as fh:
+        try:
+            if cat.indexed:
+                reader = SeekingReader(fh, record_size_limit=_RECORD_LIMIT)
+                messages = reader.iter_messages(topics=sorted(topics), starting_at=lo, ending_before=hi)
+            else:
+                messages = _stream_messages(fh, topics, lo, hi)
+            for schema, channel, message in messages:
+                decoder = decoders.get(schema, channel)
+                if channel.topic == topic:
+                    name = schema.name if schema is not None else ""
+                    yield CloudMessage(message.log_time, topic, partial(_decode_cloud, decoder, message.data, name))
+                else:
+                    pose = decoder(message.data)
+                    stamp = header_stamp_ns(pose) or message.log_time
+                    yield PoseMessage(message.log_time, stamp, pose_to_matrix(pose.pose))
+        except DAMAGE_ERRORS as exc:
+            yield Damage(f"the log is cut off or damaged at byte {fh.tell()} ({type(exc).__name__}: {exc})")
+            return
+    if not cat.indexed and cat.damage is not None:
+        yield Damage(cat.damage)
+
+
+def open_mcap(
+    path: Path,
+    *,
+    topic: str | None = None,
+    pose_topic: str | None = None,
+    start_s: float | None = None,
+    end_s: float | None = None,
+    max_scans: int | None = None,
+    every: int = 1,
+    progress: bool = False,
+) -> Iterator[Scan]:
+    """Scans of one point-cloud topic of an MCAP file (checked now, read lazily)."""
+    check_window(start_s, end_s, every, max_scans)
+    cat = read_catalog(path, progress=progress)
+    chosen = choose_topic(cat.types, topic, path)
+    pose = choose_pose_topic(cat.types, pose_topic, path)
+    lo, hi = window_ns(cat.start_ns, start_s, end_s)
+    total = cat.topics[chosen].count if start_s is None and end_s is None else None
+    return assemble(
+        _events(cat, chosen, pose, lo, hi),
+        path=path,
+        topic=chosen,
+        with_poses=pose is not None,
+        every=every,
+        max_scans=max_scans,
+        total=total,
+        progress=progress,
+    )
