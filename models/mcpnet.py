@@ -1,0 +1,204 @@
+"""MCPNet: per-point class scores and instance embeddings from multi-view context pooled out of the voxel map.
+
+Each new point is described by its own features (position relative to the robot, colour, a colour flag)
+and by M context neighbours drawn from the global voxel map (points of earlier scans included), given as
+differences to the point. A shared per-neighbour MLP and a max-pool give the context vector; joined to
+the point's own features it yields a unit-length embedding (instances) and class scores.
+
+Unlike the original, nothing is pooled over the batch: every output row depends on its own input row
+only, so a point's label never changes with the points it is batched with.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import torch
+from torch import nn
+
+from pipeline.classes import NUM_CLASSES
+from pipeline.errors import InputError
+
+WEIGHTS_DIR: Final = Path(__file__).resolve().parent / "weights"
+FORMAT: Final = "aftershock-mcpnet"
+FORMAT_VERSION: Final = 1
+
+# Feature layout, recorded in every weights file so that a file trained on another layout is refused.
+POINT_FEATURES: Final[tuple[str, ...]] = ("x", "y", "z", "r", "g", "b", "has_color")
+CONTEXT_FEATURES: Final[tuple[str, ...]] = ("dx", "dy", "dz", "dr", "dg", "db")
+POINT_DIM: Final = len(POINT_FEATURES)
+CONTEXT_DIM: Final = len(CONTEXT_FEATURES)
+
+
+@dataclass(frozen=True, slots=True)
+class NetConfig:
+    """What a weights file was built with: widths, the feature layout and how features were normalised."""
+
+    kind: str = "mcpnet"  # mcpnet | mcpnet-nocontext | pointnet
+    point_dim: int = POINT_DIM
+    context_dim: int = CONTEXT_DIM
+    width: int = 200
+    embed_dim: int = 50
+    num_classes: int = NUM_CLASSES
+    context_points: int = 50
+    context_cell_m: float = 0.3
+    voxel_m: float = 0.1
+    range_m: float = 2.0
+    features: tuple[str, ...] = POINT_FEATURES
+    context_features: tuple[str, ...] = CONTEXT_FEATURES
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["features"] = list(self.features)
+        d["context_features"] = list(self.context_features)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> NetConfig:
+        d = dict(d)
+        d["features"] = tuple(d.get("features", ()))
+        d["context_features"] = tuple(d.get("context_features", ()))
+        return NetConfig(**d)
+
+
+def _mlp(*widths: int, last_relu: bool = True) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(itertools.pairwise(widths)):
+        layers.append(nn.Linear(a, b))
+        if last_relu or i < len(widths) - 2:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+class MCPNet(nn.Module):
+    """Context pooling network; `use_context=False` is the same network without the context branch."""
+
+    def __init__(self, cfg: NetConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        w = cfg.width
+        self.use_context = cfg.kind == "mcpnet"
+        if self.use_context:
+            self.context_mlp = _mlp(cfg.context_dim, w, w)
+        joined = cfg.point_dim + (w if self.use_context else 0)
+        self.point_mlp = _mlp(joined, w)
+        self.embed = nn.Linear(w, cfg.embed_dim)
+        self.classify = _mlp(w + cfg.embed_dim, w, cfg.num_classes, last_relu=False)
+
+    def forward(
+        self, point: torch.Tensor, context: torch.Tensor | None = None, mask: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """point (B, Fp); context (B, M, Fc) differences to the point; mask (B, M) True where a neighbour exists.
+        Returns unit embeddings (B, E) and class logits (B, C)."""
+        x = point
+        if self.use_context:
+            assert context is not None
+            h = self.context_mlp(context)  # (B, M, W), ReLU output >= 0
+            if mask is not None:
+                h = h * mask.unsqueeze(-1).to(h.dtype)  # absent neighbours pool to 0, the ReLU floor
+            x = torch.cat([h.amax(dim=1), point], dim=1)
+        feat = self.point_mlp(x)
+        emb = nn.functional.normalize(self.embed(feat), dim=1)
+        logits = self.classify(torch.cat([feat, emb], dim=1))
+        return emb, logits
+
+
+def num_parameters(model: nn.Module) -> int:
+    return int(sum(p.numel() for p in model.parameters()))
+
+
+def default_weights(kind: str = "mcpnet") -> Path:
+    return WEIGHTS_DIR / f"{kind.replace('-', '_')}.pt"
+
+
+REBUILD_HINT: Final = "rebuild it with `aftershock train mcpnet --force`"
+
+
+def save_weights(path: Path, model: nn.Module, cfg: NetConfig, figures: dict[str, Any]) -> None:
+    """Weights plus a header (format, version, config, feature layout, training figures)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().to(torch.float32).clone() for k, v in model.state_dict().items()}
+    torch.save(
+        {"format": FORMAT, "version": FORMAT_VERSION, "config": cfg.to_dict(), "figures": figures, "state": state},
+        path,
+    )
+
+
+def load_header(path: str | Path) -> dict[str, Any]:
+    """The raw contents of a weights file, checked for format and version; InputError naming the file if not."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"weights file not found; {REBUILD_HINT}", p)
+    try:
+        blob = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for a damaged or foreign file
+        raise InputError(f"not a readable weights file ({type(exc).__name__}); {REBUILD_HINT}", p) from None
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise InputError(f"not an aftershock MCPNet weights file; {REBUILD_HINT}", p)
+    if blob.get("version") != FORMAT_VERSION:
+        raise InputError(f"weights format version {blob.get('version')} != {FORMAT_VERSION}; {REBUILD_HINT}", p)
+    return blob
+
+
+def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, NetConfig, dict[str, Any]]:
+    """A network ready for inference from a weights file; refuses files of another kind or feature layout."""
+    from models.pointnet import PointNet  # local: pointnet imports this module
+
+    blob = load_header(path)
+    try:
+        cfg = NetConfig.from_dict(blob["config"])
+    except (TypeError, KeyError) as exc:
+        raise InputError(f"weights header does not match this version ({exc}); {REBUILD_HINT}", path) from None
+    if kind is not None and cfg.kind != kind:
+        raise InputError(f"weights are for {cfg.kind!r}, expected {kind!r}; {REBUILD_HINT}", path)
+    if cfg.features != POINT_FEATURES or cfg.context_features != CONTEXT_FEATURES:
+        raise InputError(
+            f"weights use feature layout {list(cfg.features)}, this version expects "
+            f"{list(POINT_FEATURES)}; {REBUILD_HINT}",
+            path,
+        )
+    if cfg.num_classes != NUM_CLASSES:
+        raise InputError(
+            f"weights predict {cfg.num_classes} classes, the class table has {NUM_CLASSES}; {REBUILD_HINT}", path
+        )
+    model: nn.Module = PointNet(cfg) if cfg.kind == "pointnet" else MCPNet(cfg)
+    try:
+        model.load_state_dict(blob["state"])
+    except (RuntimeError, KeyError) as exc:
+        raise InputError(f"weights do not fit the network ({str(exc).splitlines()[0]}); {REBUILD_HINT}", path) from None
+    model.eval()
+    return model, cfg, blob.get("figures", {})
+
+
+def point_features(positions: np.ndarray, colors: np.ndarray | None, origin: np.ndarray, floor_z: float) -> np.ndarray:
+    """(N, 7) float32: x, y relative to the robot, z relative to the floor, colour in [-0.5, 0.5], colour flag."""
+    n = len(positions)
+    out = np.zeros((n, POINT_DIM), np.float32)
+    out[:, 0:2] = positions[:, 0:2] - origin[0:2]
+    out[:, 2] = positions[:, 2] - floor_z
+    if colors is not None:
+        out[:, 3:6] = colors.astype(np.float32) / 255.0 - 0.5
+        out[:, 6] = 1.0
+    return out
+
+
+def context_features(
+    positions: np.ndarray,
+    colors: np.ndarray | None,
+    rows: np.ndarray,
+    ctx_rows: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Context of map rows `rows` (K,) from neighbour rows `ctx_rows` (K, M, -1 where none):
+    (K, M, 6) float32 differences to the point and a (K, M) bool mask. Colours zero when `colors` is None."""
+    mask = ctx_rows >= 0
+    safe = np.where(mask, ctx_rows, rows[:, None])
+    ctx = np.zeros((*ctx_rows.shape, CONTEXT_DIM), np.float32)
+    ctx[..., 0:3] = positions[safe] - positions[rows][:, None, :]
+    if colors is not None:
+        c = colors.astype(np.float32) / 255.0
+        ctx[..., 3:6] = c[safe] - c[rows][:, None, :]
+    return ctx, mask
