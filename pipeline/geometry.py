@@ -171,3 +171,24 @@ def attach_small_segments(points: np.ndarray, labels: np.ndarray, min_size: int)
     _, nearest = tree.query(points[small], k=1, workers=-1)
     labels[small] = labels[~small][nearest]
     return labels
+
+
+def group_pca(groups: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """PCA normals (B, 3) float32 and curvature (B,) float32 of B padded point groups (B, k, 3), using only
+    the entries where `valid` (B, k) is True; groups of fewer than 3 points get a zero normal and
+    curvature 1. Normals are oriented to +z like `pca_normals`."""
+    g = np.asarray(groups, dtype=np.float64)
+    w = np.asarray(valid, dtype=np.float64)[..., None]
+    count = w.sum(axis=1)  # (B, 1)
+    mean = (g * w).sum(axis=1) / np.maximum(count, 1)
+    centred = (g - mean[:, None, :]) * w
+    cov = np.einsum("bki,bkj->bij", centred, centred) / np.maximum(count, 1)[:, :, None]
+    evals, evecs = np.linalg.eigh(cov)
+    nrm = evecs[:, :, 0]
+    nrm[nrm[:, 2] < 0] *= -1
+    total = evals.sum(axis=1)
+    curv = np.where(total > 0, evals[:, 0] / np.where(total > 0, total, 1), 0.0)
+    few = count[:, 0] < 3
+    curv[few] = 1.0
+    nrm[few] = 0.0
+    return nrm.astype(np.float32), curv.astype(np.float32)
