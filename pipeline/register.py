@@ -1,0 +1,191 @@
+"""Registration stage: KISS-ICP per scan through `KissICP.register_frame`, giving every frame a world pose.
+
+KISS-ICP's pose is the sensor pose at the end of the sweep, the first scan at identity. Deskewing follows
+KISS-ICP's own constant-velocity model (per-point times normalised to [0, 1], the last motion spread over
+the sweep) but is done here in numpy for *every* point, so the world points stay aligned with the scan's
+per-point arrays; KISS-ICP then gets the deskewed scan and an empty time array (its own deskew would also
+drop out-of-range points and break that alignment).
+
+A scan that cannot be aligned (too few points in range, a non-finite pose, or an ICP correction far from
+the constant-velocity prediction) is reported on the frame (`registration_ok = False` and a note) and the
+stream goes on; the labelling stage leaves such frames out of the map.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from time import perf_counter
+from typing import Final
+
+import numpy as np
+from kiss_icp.config import KISSConfig
+from kiss_icp.kiss_icp import KissICP
+from scipy.spatial.transform import Rotation
+
+from pipeline.config import Environment, RegisterConfig
+from pipeline.types import Frame, Scan
+
+log = logging.getLogger(__name__)
+
+MIN_POINTS: Final = 100  # fewer points in range than this and ICP has nothing to hold on to
+INDOOR_GUESS_RANGE_M: Final = 15.0  # 90 % of the first scan's returns nearer than this -> indoor
+
+
+@dataclass(frozen=True, slots=True)
+class RegistrationSettings:
+    voxel_size_m: float
+    min_range_m: float
+    max_range_m: float
+
+
+# KISS-ICP's own rule is voxel = max range / 100; indoors that is too coarse for rooms and corridors.
+DEFAULTS: Final[dict[Environment, RegistrationSettings]] = {
+    Environment.INDOOR: RegistrationSettings(voxel_size_m=0.25, min_range_m=0.3, max_range_m=30.0),
+    Environment.OUTDOOR: RegistrationSettings(voxel_size_m=0.5, min_range_m=0.5, max_range_m=100.0),
+}
+
+
+def guess_environment(scan: Scan) -> Environment:
+    """Indoor when most returns are near (walls all around), else outdoor."""
+    if not len(scan):
+        return Environment.INDOOR
+    ranges = np.linalg.norm(scan.points, axis=1)
+    return Environment.INDOOR if np.percentile(ranges, 90) < INDOOR_GUESS_RANGE_M else Environment.OUTDOOR
+
+
+def settings_for(cfg: RegisterConfig, environment: Environment) -> RegistrationSettings:
+    base = DEFAULTS[Environment.OUTDOOR if environment is Environment.OUTDOOR else Environment.INDOOR]
+    return RegistrationSettings(
+        voxel_size_m=cfg.voxel_size_m or base.voxel_size_m,
+        min_range_m=base.min_range_m if cfg.min_range_m is None else cfg.min_range_m,
+        max_range_m=cfg.max_range_m or base.max_range_m,
+    )
+
+
+# ------------------------------------------------------------------------------------------- SE(3) helpers
+
+
+def _hat(w: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) skew-symmetric matrices."""
+    z = np.zeros(len(w))
+    return np.stack(
+        [
+            np.stack([z, -w[:, 2], w[:, 1]], -1),
+            np.stack([w[:, 2], z, -w[:, 0]], -1),
+            np.stack([-w[:, 1], w[:, 0], z], -1),
+        ],
+        axis=1,
+    )
+
+
+def se3_log(pose: np.ndarray) -> np.ndarray:
+    """Twist (v, w) of a 4 x 4 rigid transform, translation part first (Sophus' order)."""
+    w = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
+    theta = float(np.linalg.norm(w))
+    wx = _hat(w[None])[0]
+    if theta < 1e-9:
+        v_inv = np.eye(3) - 0.5 * wx
+    else:
+        half = 0.5 * theta
+        v_inv = np.eye(3) - 0.5 * wx + (1.0 - half / np.tan(half)) / theta**2 * (wx @ wx)
+    return np.r_[v_inv @ pose[:3, 3], w]
+
+
+def se3_exp_apply(twist: np.ndarray, scales: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """exp(s_i * twist) applied to point i, for all points at once."""
+    v, w = twist[:3], twist[3:]
+    s = np.asarray(scales, np.float64)
+    ws = s[:, None] * w[None, :]
+    theta = np.linalg.norm(ws, axis=1)
+    small = theta < 1e-9
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(t) / t)
+    b = np.where(small, 0.5, (1.0 - np.cos(t)) / t**2)
+    c = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
+    p = np.asarray(points, np.float64)
+    # Rodrigues for R p and V v without building N matrices: w x p and w x (w x p).
+    wp = np.cross(ws, p)
+    rp = p + a[:, None] * wp + b[:, None] * np.cross(ws, wp)
+    vs = s[:, None] * v[None, :]
+    wv = np.cross(ws, vs)
+    trans = vs + b[:, None] * wv + c[:, None] * np.cross(ws, wv)
+    return rp + trans
+
+
+def deskew(points: np.ndarray, times: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """KISS-ICP's deskew: point at normalised time s moves by exp((s - 1) log(delta)) into the end-of-sweep frame."""
+    t = np.asarray(times, np.float64)
+    t0, t1 = float(t.min()), float(t.max())
+    if not t1 > t0:
+        return points
+    s = (t - t0) / (t1 - t0)
+    return se3_exp_apply(se3_log(delta), s - 1.0, points)
+
+
+def transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+# ------------------------------------------------------------------------------------------------- stage
+
+
+class Registrar:
+    """One KISS-ICP odometry over a stream of scans."""
+
+    def __init__(self, cfg: RegisterConfig, environment: Environment) -> None:
+        self.cfg = cfg
+        self.settings = settings_for(cfg, environment)
+        kiss_cfg = KISSConfig()
+        kiss_cfg.data.max_range = self.settings.max_range_m
+        kiss_cfg.data.min_range = self.settings.min_range_m
+        kiss_cfg.data.deskew = False  # done here, for every point (see the module docstring)
+        kiss_cfg.mapping.voxel_size = self.settings.voxel_size_m
+        kiss_cfg.mapping.max_points_per_voxel = cfg.max_points_per_voxel
+        self.kiss = KissICP(kiss_cfg)
+        self.frames = 0
+
+    def register(self, frame: Frame) -> Frame:
+        scan = frame.scan
+        delta = self.kiss.last_delta.copy()
+        prediction = self.kiss.last_pose @ delta
+        points = scan.points
+        if self.cfg.deskew and scan.times is not None and len(scan):
+            points = deskew(points, scan.times, delta)
+        ranges = np.linalg.norm(points, axis=1)
+        usable = int(((ranges > self.settings.min_range_m) & (ranges < self.settings.max_range_m)).sum())
+        if usable < MIN_POINTS:
+            self._skip(frame, prediction, f"only {usable} points within range; pose predicted from motion")
+        else:
+            self.kiss.register_frame(points, np.zeros(0))
+            pose = self.kiss.last_pose
+            correction = float(np.linalg.norm((np.linalg.inv(prediction) @ pose)[:3, 3]))
+            if not np.isfinite(pose).all():
+                self._skip(frame, prediction, "ICP gave a non-finite pose; pose predicted from motion")
+            else:
+                frame.pose = pose.copy()
+                if self.frames > 1 and correction > self.cfg.max_correction_m:
+                    frame.registration_ok = False
+                    frame.registration_note = (
+                        f"ICP moved the scan {correction:.2f} m away from the constant-velocity prediction"
+                    )
+        frame.world_points = transform(frame.pose, points)
+        self.frames += 1
+        if not frame.registration_ok:
+            log.warning("scan %d: %s", scan.seq, frame.registration_note)
+        return frame
+
+    def _skip(self, frame: Frame, prediction: np.ndarray, note: str) -> None:
+        self.kiss.last_pose = prediction
+        frame.pose = prediction.copy()
+        frame.registration_ok = False
+        frame.registration_note = note
+
+
+def register_stage(frames: Iterable[Frame], registrar: Registrar) -> Iterator[Frame]:
+    for frame in frames:
+        t0 = perf_counter()
+        registrar.register(frame)
+        frame.timings_ms["register"] = (perf_counter() - t0) * 1e3
+        yield frame
