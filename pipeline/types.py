@@ -172,6 +172,7 @@ class Crack:
     axis: np.ndarray  # (3,) unit direction of the length
     normal: np.ndarray  # (3,) unit normal of the surface plane
     severe: bool
+    width_resolved: bool = True  # False: narrower than the point spacing; width_m is then the spacing
 
 
 @dataclass(slots=True)
