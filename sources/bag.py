@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Final
 
@@ -87,15 +88,19 @@ def read_catalog(path: Path) -> BagCatalog:
     return cat
 
 
-def _events(path: Path, topic: str, pose_topic: str | None, lo: int | None, hi: int | None) -> Iterator[Event]:
+def events(
+    path: Path, cloud_topics: set[str], pose_topic: str | None = None, lo: int | None = None, hi: int | None = None
+) -> Iterator[Event]:
+    """Cloud (lazily decoded), pose and damage events of the given topics in log-time order."""
     errors = _errors()
     try:
         with _reader(path) as reader:
-            wanted = {topic} | ({pose_topic} if pose_topic else set())
+            wanted = cloud_topics | ({pose_topic} if pose_topic else set())
             conns = [c for c in reader.connections if c.topic in wanted]
             for conn, log_time, raw in reader.messages(connections=conns, start=lo, stop=hi):
-                if conn.topic == topic:
-                    yield CloudMessage(int(log_time), topic, lambda r=raw, c=conn, rd=reader: _cloud(rd, r, c.msgtype))
+                if conn.topic in cloud_topics:
+                    decode = partial(_cloud, reader, raw, conn.msgtype)
+                    yield CloudMessage(int(log_time), conn.topic, decode)
                 else:
                     msg = reader.deserialize(raw, conn.msgtype)
                     yield PoseMessage(int(log_time), header_stamp_ns(msg) or int(log_time), pose_to_matrix(msg.pose))
@@ -105,7 +110,8 @@ def _events(path: Path, topic: str, pose_topic: str | None, lo: int | None, hi: 
 
 def _cloud(reader: Any, raw: bytes, msgtype: str) -> DecodedCloud:
     msg = reader.deserialize(raw, msgtype)
-    return DecodedCloud(decode_pointcloud2(msg).columns, header_stamp_ns(msg), str(msg.header.frame_id))
+    cloud = decode_pointcloud2(msg)
+    return DecodedCloud(cloud.columns, header_stamp_ns(msg), str(msg.header.frame_id), cloud.fields, cloud.height)
 
 
 def open_bag(
@@ -128,7 +134,7 @@ def open_bag(
     pose = choose_pose_topic(cat.types, pose_topic, path)
     lo, hi = window_ns(cat.start_ns, start_s, end_s)
     return assemble(
-        _events(path, chosen, pose, lo, hi),
+        events(path, {chosen}, pose, lo, hi),
         path=path,
         topic=chosen,
         with_poses=pose is not None,

@@ -18,7 +18,7 @@ import numpy as np
 from pipeline.errors import DamagedLogWarning, InputError
 from pipeline.progress import bar
 from pipeline.types import Scan
-from sources.pointcloud2 import NoXYZError, columns_to_scan
+from sources.pointcloud2 import Field, NoXYZError, columns_to_scan
 
 POINTCLOUD_TYPES: Final[frozenset[str]] = frozenset(
     {"sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2", "foxglove.PointCloud"}
@@ -38,6 +38,8 @@ class DecodedCloud:
     columns: dict[str, np.ndarray]
     stamp_ns: int  # header stamp, 0 if the message has none
     frame_id: str
+    fields: tuple[Field, ...] | None = None  # as the message declares them (None: files without PointFields)
+    height: int = 1
 
 
 @dataclass(slots=True)

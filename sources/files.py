@@ -195,7 +195,7 @@ def read_file(path: Path) -> dict[str, np.ndarray]:
     raise InputError(f"unknown point-cloud file type {suffix!r}", path)
 
 
-def _events(files: list[Path], lo: int | None, hi: int | None) -> Iterator[Event]:
+def events(files: list[Path], lo: int | None, hi: int | None) -> Iterator[Event]:
     for k, f in enumerate(files):
         t = k * FILE_PERIOD_NS
         if (lo is not None and t < lo) or (hi is not None and t >= hi):
@@ -227,7 +227,7 @@ def open_files(
     files = list_files(path)
     lo, hi = window_ns(0, start_s, end_s)
     return assemble(
-        _events(files, lo, hi),
+        events(files, lo, hi),
         path=path,
         topic=FILES_TOPIC,
         with_poses=False,

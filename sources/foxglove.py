@@ -37,4 +37,4 @@ def decode_foxglove_pointcloud(msg: Any) -> DecodedCloud:
     data = bytes(msg.data)
     n = len(data) // stride if stride else 0
     records = decode_records(data, fields, height=1, width=n, point_step=stride, row_step=n * stride)
-    return DecodedCloud(records_to_columns(records), stamp_to_ns(msg.timestamp), str(msg.frame_id))
+    return DecodedCloud(records_to_columns(records), stamp_to_ns(msg.timestamp), str(msg.frame_id), tuple(fields))

@@ -14,7 +14,7 @@ from functools import partial
 from pathlib import Path
 from typing import IO, Any, Final
 
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
@@ -60,6 +60,15 @@ def _damage_errors() -> tuple[type[BaseException], ...]:
 
 
 DAMAGE_ERRORS: Final[tuple[type[BaseException], ...]] = _damage_errors()
+
+
+def damage_reason(exc: BaseException, where: int, size: int | None = None) -> str:
+    """One line on what went wrong where in a damaged log."""
+    of = f" of {size}" if size is not None else ""
+    if isinstance(exc, EndOfFile | EOFError):
+        return f"the log is cut off at byte {where}{of} (it ends inside a record)"
+    detail = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return f"the log is damaged near byte {where}{of} ({type(exc).__name__}{': ' + detail if detail else ''})"
 
 
 def is_mcap(path: Path) -> bool:
@@ -167,7 +176,7 @@ def _scan_stream(fh: IO[bytes], cat: McapCatalog, progress: bool) -> None:
                 elif hasattr(record, "profile"):
                     cat.profile = record.profile
     except DAMAGE_ERRORS as exc:
-        cat.damage = f"the log is cut off or damaged at byte {fh.tell()} of {size} ({type(exc).__name__}: {exc})"
+        cat.damage = damage_reason(exc, fh.tell(), size)
     for cid, channel in channels.items():
         _add_topic(cat, channel, schemas.get(channel.schema_id), counts.get(cid, 0))
 
@@ -207,7 +216,8 @@ def _decode_cloud(decoder: Callable[[bytes], Any], data: bytes, schema_name: str
     msg = decoder(data)
     if schema_name == "foxglove.PointCloud":
         return decode_foxglove_pointcloud(msg)
-    return DecodedCloud(decode_pointcloud2(msg).columns, header_stamp_ns(msg), str(msg.header.frame_id))
+    cloud = decode_pointcloud2(msg)
+    return DecodedCloud(cloud.columns, header_stamp_ns(msg), str(msg.header.frame_id), cloud.fields, cloud.height)
 
 
 def _stream_messages(
@@ -229,9 +239,16 @@ def _stream_messages(
             yield schemas.get(channel.schema_id), channel, record
 
 
-def _events(cat: McapCatalog, topic: str, pose_topic: str | None, lo: int | None, hi: int | None) -> Iterator[Event]:
+def events(
+    cat: McapCatalog,
+    cloud_topics: set[str],
+    pose_topic: str | None = None,
+    lo: int | None = None,
+    hi: int | None = None,
+) -> Iterator[Event]:
+    """Cloud (lazily decoded), pose and damage events of the given topics in log-time order."""
     decoders = _Decoders()
-    topics = {topic} | ({pose_topic} if pose_topic else set())
+    topics = cloud_topics | ({pose_topic} if pose_topic else set())
     with cat.path.open("rb") as fh:
         try:
             if cat.indexed:
@@ -241,15 +258,16 @@ def _events(cat: McapCatalog, topic: str, pose_topic: str | None, lo: int | None
                 messages = _stream_messages(fh, topics, lo, hi)
             for schema, channel, message in messages:
                 decoder = decoders.get(schema, channel)
-                if channel.topic == topic:
+                if channel.topic in cloud_topics:
                     name = schema.name if schema is not None else ""
-                    yield CloudMessage(message.log_time, topic, partial(_decode_cloud, decoder, message.data, name))
+                    decode = partial(_decode_cloud, decoder, message.data, name)
+                    yield CloudMessage(message.log_time, channel.topic, decode)
                 else:
                     pose = decoder(message.data)
                     stamp = header_stamp_ns(pose) or message.log_time
                     yield PoseMessage(message.log_time, stamp, pose_to_matrix(pose.pose))
         except DAMAGE_ERRORS as exc:
-            yield Damage(f"the log is cut off or damaged at byte {fh.tell()} ({type(exc).__name__}: {exc})")
+            yield Damage(damage_reason(exc, fh.tell()))
             return
     if not cat.indexed and cat.damage is not None:
         yield Damage(cat.damage)
@@ -274,7 +292,7 @@ def open_mcap(
     lo, hi = window_ns(cat.start_ns, start_s, end_s)
     total = cat.topics[chosen].count if start_s is None and end_s is None else None
     return assemble(
-        _events(cat, chosen, pose, lo, hi),
+        events(cat, {chosen}, pose, lo, hi),
         path=path,
         topic=chosen,
         with_poses=pose is not None,
