@@ -112,6 +112,9 @@ class Frame:
     scan: Scan
     pose: np.ndarray | None = None  # (4, 4) estimated sensor pose, world <- sensor (end of sweep)
     world_points: np.ndarray | None = None  # (N, 3) the deskewed scan in the world frame
+    # (4, 4) estimated sensor pose at `scan.stamp_ns` (equals `pose` unless the sweep was deskewed);
+    # compare this one with `scan.gt_pose` and write it with the stamp in pose files.
+    stamp_pose: np.ndarray | None = None
     registration_ok: bool = True
     registration_note: str = ""
     keep: np.ndarray | None = None  # (N,) bool, points kept by the range filter for labelling
