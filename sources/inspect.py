@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import DamagedLogWarning
+from pipeline.errors import DamagedLogWarning, InputError
 from pipeline.progress import bar
 from sources import SourceKind, kind_of
-from sources.common import POINTCLOUD_TYPES, POSE_TYPES, CloudMessage, Damage, DecodedCloud, Event
+from sources.common import POINTCLOUD_TYPES, POSE_TYPES, CloudMessage, Damage, DecodedCloud, Event, choose_topic
 from sources.pointcloud2 import (
     CLASS_FIELD,
     INSTANCE_FIELD,
@@ -144,8 +144,33 @@ def summarise_clouds(
     return list(summaries.values()), damage
 
 
-def inspect(path_or_glob: str | Path, progress: bool = False) -> LogSummary:
-    """Everything `info` reports; InputError for inputs that cannot be read at all."""
+def _cloud_topics(types: dict[str, str], topic: str | None, path: str | Path) -> set[str]:
+    if topic is not None:
+        return {choose_topic(types, topic, path)}
+    clouds = {t for t, ty in types.items() if ty in POINTCLOUD_TYPES}
+    if not clouds:
+        choose_topic(types, None, path)  # raises the "no point-cloud topic" error with the topics listed
+    return clouds
+
+
+def _check_replayable(point_clouds: list[CloudTopicSummary], path: str | Path) -> None:
+    """The same refusals as reading scans: no x/y/z, or not one valid point, on every topic asked about."""
+    if not point_clouds or any(pc.has_xyz and pc.points_total > 0 for pc in point_clouds):
+        return
+    pc = point_clouds[0]
+    if not pc.has_xyz:
+        names = ", ".join(f.name for f in pc.fields) or "none"
+        raise InputError(f"{pc.topic}: point cloud has no x/y/z fields (fields: {names})", path)
+    if pc.scans:
+        raise InputError(f"every point of every scan on {pc.topic} is invalid (NaN or zero)", path)
+
+
+def inspect(path_or_glob: str | Path, progress: bool = False, topic: str | None = None) -> LogSummary:
+    """Everything `info` reports, for every point-cloud topic or only `topic`.
+
+    InputError for inputs that cannot be replayed at all: unreadable, no point-cloud topic, a missing
+    `topic`, or clouds without x/y/z or without a single valid point (what `run` would refuse too).
+    """
     kind = kind_of(path_or_glob)
     name = Path(str(path_or_glob)).name
     if kind is SourceKind.MCAP:
@@ -154,9 +179,9 @@ def inspect(path_or_glob: str | Path, progress: bool = False) -> LogSummary:
         cat = read_catalog(Path(path_or_glob), progress=progress)
         types = cat.types
         topics = [TopicSummary(t.name, t.type, t.count) for t in sorted(cat.topics.values(), key=lambda t: t.name)]
-        clouds = {t for t, ty in types.items() if ty in POINTCLOUD_TYPES}
+        clouds = _cloud_topics(types, topic, path_or_glob)
         total = sum(cat.topics[t].count for t in clouds)
-        evs: Iterator[Event] = events(cat, clouds) if clouds else iter(())
+        evs: Iterator[Event] = events(cat, clouds)
         start, end, duration = cat.start_ns, cat.end_ns, cat.duration_s
     elif kind is SourceKind.BAG:
         from sources.bag import events as bag_events
@@ -165,9 +190,9 @@ def inspect(path_or_glob: str | Path, progress: bool = False) -> LogSummary:
         bag = read_bag(Path(path_or_glob))
         types = bag.types
         topics = [TopicSummary(t, ty, n) for t, (ty, n) in sorted(bag.topics.items())]
-        clouds = {t for t, ty in types.items() if ty in POINTCLOUD_TYPES}
+        clouds = _cloud_topics(types, topic, path_or_glob)
         total = sum(bag.topics[t][1] for t in clouds)
-        evs = bag_events(Path(path_or_glob), clouds) if clouds else iter(())
+        evs = bag_events(Path(path_or_glob), clouds)
         start, end, duration = bag.start_ns, bag.end_ns, bag.duration_s
     elif kind is SourceKind.FILES:
         from sources.files import FILE_PERIOD_NS, FILES_TOPIC, list_files
@@ -181,12 +206,12 @@ def inspect(path_or_glob: str | Path, progress: bool = False) -> LogSummary:
         evs = file_events(files, None, None)
         start, end, duration = 0, (len(files) - 1) * FILE_PERIOD_NS, (len(files) - 1) * FILE_PERIOD_NS * 1e-9
     else:
-        from pipeline.errors import InputError
-
         raise InputError("`info` reads logs and files; a simulator URI has nothing to inspect", path_or_glob)
-    point_clouds, damage = summarise_clouds(evs, types, total, progress, name)
+        clouds = {FILES_TOPIC}
+    point_clouds, damage = summarise_clouds(evs, {t: types[t] for t in clouds}, total, progress, name)
     if kind is SourceKind.FILES:
         point_clouds[0].type = topics[0].type
+    _check_replayable(point_clouds, path_or_glob)
     if damage is not None:
         warnings.warn(DamagedLogWarning(f"{path_or_glob}: {damage}; counted what precedes it"), stacklevel=2)
     return LogSummary(
