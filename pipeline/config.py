@@ -75,6 +75,7 @@ class ClusterConfig(_Section):
 class RerunConfig(_Section):
     map_voxel_m: float = 0.1  # the accumulated map shown in the viewer is downsampled to this
     map_every: int = 10  # re-log the accumulated map every N scans
+    map_tile_m: float = 20.0  # the map is logged in square tiles of this size; only changed tiles are re-logged
     raw_points: bool = True
     embeddings: bool = True
 
@@ -93,6 +94,14 @@ class LRGNetConfig(_Section):
     score: str = "ml"  # ml (summed log-likelihood) | np (number of points)
     seed: int = 0
     weights: str | None = None
+    # Baselines run beside LRGNet (pipeline.refine.baselines)
+    baseline_normal_angle_deg: float = 20.0  # threshold region growing: normals within this angle
+    baseline_color_distance: float = 0.12  # ... and RGB (0..1) closer than this
+    smoothness_k: int = 16  # Rabbani et al.: neighbours per point
+    smoothness_angle_deg: float = 10.0
+    smoothness_curvature_percentile: float = 98.0  # points above this curvature percentile stop growing
+    fpfh_similarity: float = 0.9  # cosine similarity of FPFH histograms to link touching voxels
+    mcpnet_similarity: float = 0.9  # cosine similarity of MCPNet embeddings (the clustering stage's β indoor)
 
 
 class CrackConfig(_Section):
@@ -103,6 +112,13 @@ class CrackConfig(_Section):
     severe_width_m: float = 0.0032  # 1/8 inch
     min_crack_points: int = 20
     seed: int = 0
+    normal_cell_m: float = 0.015  # normals/curvature: PCA over the 3 x 3 x 3 block of these voxels (the study's)
+    fpfh_radius_m: float = 0.02
+    smooth_cell_m: float = 0.02  # detector scores averaged over the 3 x 3 x 3 block of these voxels; 0 = off
+    link_m: float = 0.01  # crack points closer than this (or 2 x the spacing) belong to one crack
+    max_spacing_m: float = 0.02  # coarser clouds are refused as too sparse to measure cracks
+    fit_points: int = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
+    weights: str | None = None  # CrackEmbed weights; None = the shipped ones
 
 
 class DriftConfig(_Section):

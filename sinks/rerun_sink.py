@@ -1,0 +1,482 @@
+"""Rerun sink: every stage of every scan, the growing labelled map and the on-demand layers, on shared timelines.
+
+Timelines
+- `scan`: the scan's sequence number.
+- `sensor_time`: the scan's stamp as a timestamp; for MCAP inputs it is replaced by the two timelines of Rerun's
+  own MCAP import, `message_log_time` (MCAP log time) and `ros2_timestamp` (header stamp), both absolute ns,
+  so the recording and the imported log line up when opened together.
+- `lrgnet_step`: one object's growth, step by step (only the `world/refined/growth` layer lives on it).
+
+Entities (`world/` is the site, z up, with the class table as a static annotation context)
+- `world/map/x{i}y{j}`: the accumulated labelled map (`class_ids`, `instance_id`), voxel-downsampled to
+  `cfg.map_voxel_m` and cut into square tiles of `cfg.map_tile_m`; every `cfg.map_every` scans only the tiles
+  that changed are re-logged, so a long mission stays light in the file and fluid in the viewer.
+- `world/trajectory/p{k}`: the estimated trajectory as line strips of up to `TRAJECTORY_PIECE` poses; only the
+  newest piece is re-logged per scan.
+- `world/robot`: the pose (Transform3D, world <- sensor); `world/robot/raw` the raw scan in the sensor frame.
+- `world/scan/registered`: the deskewed scan in the world frame; `world/scan/labels` the points kept for
+  labelling with their `class_ids`; `world/scan/instances` the same points in instance colours with `class_ids`
+  and an `instance_id` component; `world/scan/embedding` MCPNet embeddings as colours (when present).
+- `world/refined` (+ `growth/inliers`, `growth/neighbours`): LRGNet's segmentation and one object's growth.
+- `world/damage/crack_points`, `world/damage/cracks` (boxes labelled with length and width),
+  `world/damage/stories/s{i}` (story planes), `world/damage/drift` (drift arrows, exaggerated, labelled in mm).
+- `stats/time_ms/<stage>` and `stats/counts/<name>`: scalars per scan; `log/...`: merges, registration
+  warnings and the run summary as text log entries.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import rerun as rr
+
+from pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNLABELLED, UNLABELLED_COLOR, instance_colors
+from pipeline.cloud_io import check_output
+from pipeline.config import RerunConfig
+from pipeline.errors import OutputError
+from pipeline.geometry import voxel_downsample
+from pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Scan, Story
+from sinks import rerun_blueprint as L
+from sinks.base import Sink, Stage
+
+TRAJECTORY_PIECE: Final = 500  # poses per trajectory strip; older strips are never re-logged
+DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)
+SPAWN_PORT: Final = 9876
+
+SCAN_RADIUS: Final = rr.Radius.ui_points(1.5)
+MAP_RADIUS_OF_VOXEL: Final = 0.2  # map points drawn with a world-space radius of this fraction of the voxel
+CRACK_RADIUS: Final = rr.Radius.ui_points(3.0)
+TRAJECTORY_COLOR: Final = (255, 210, 0)
+GROWTH_INLIER_COLOR: Final = (60, 220, 90)
+GROWTH_NEIGHBOUR_COLOR: Final = (255, 200, 40)
+CRACK_COLOR: Final = (255, 30, 60)
+MILD_CRACK_COLOR: Final = (255, 150, 0)
+
+# A perceptually ordered ramp (viridis stops) for intensity colouring, interpolated per channel.
+_RAMP: Final = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], dtype=np.float64)
+
+
+def annotation_context() -> rr.AnnotationContext:
+    """The class table (and the unlabelled id) as a Rerun annotation context."""
+    infos = [(i, name, tuple(int(c) for c in CLASS_COLORS[i])) for i, name in enumerate(CLASS_NAMES)]
+    infos.append((UNLABELLED, "unlabelled", tuple(int(c) for c in UNLABELLED_COLOR)))
+    return rr.AnnotationContext(infos)
+
+
+def ramp_colors(values: np.ndarray) -> np.ndarray:
+    """Colours (N, 3) uint8 for scalar values, stretched between their 2nd and 98th percentiles."""
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if len(v) == 0:
+        return np.zeros((0, 3), np.uint8)
+    finite = v[np.isfinite(v)]
+    lo, hi = np.percentile(finite, [2, 98]) if len(finite) else (0.0, 1.0)
+    t = np.clip((np.nan_to_num(v, nan=lo) - lo) / max(hi - lo, 1e-12), 0.0, 1.0) * (len(_RAMP) - 1)
+    stops = np.arange(len(_RAMP))
+    return np.stack([np.interp(t, stops, _RAMP[:, c]) for c in range(3)], axis=1).astype(np.uint8)
+
+
+class EmbeddingColors:
+    """Embeddings (N, D) to RGB with a PCA fitted on the first batch and then frozen, so colours stay
+    comparable from scan to scan."""
+
+    def __init__(self) -> None:
+        self.mean: np.ndarray | None = None
+        self.axes: np.ndarray | None = None  # (D, 3)
+        self.scale: np.ndarray | None = None  # (3,)
+
+    def __call__(self, embeddings: np.ndarray) -> np.ndarray:
+        e = np.asarray(embeddings, dtype=np.float64)
+        if self.axes is None or self.axes.shape[0] != e.shape[1]:
+            self._fit(e)
+        assert self.mean is not None and self.axes is not None and self.scale is not None
+        proj = (e - self.mean) @ self.axes / self.scale
+        return (np.clip(0.5 + 0.5 * proj, 0.0, 1.0) * 255).astype(np.uint8)
+
+    def _fit(self, e: np.ndarray) -> None:
+        d = e.shape[1]
+        self.mean = e.mean(axis=0) if len(e) else np.zeros(d)
+        axes = np.zeros((d, 3))
+        if len(e) >= 2:
+            _, _, vt = np.linalg.svd(e - self.mean, full_matrices=False)
+            k = min(3, vt.shape[0])
+            axes[:, :k] = vt[:k].T
+        else:
+            axes[: min(d, 3), : min(d, 3)] = np.eye(min(d, 3))
+        self.axes = axes
+        spread = ((e - self.mean) @ axes).std(axis=0) if len(e) >= 2 else np.ones(3)
+        self.scale = np.maximum(2.0 * spread, 1e-6)
+
+
+def _datetime(ns: int) -> np.datetime64:
+    return np.datetime64(int(ns), "ns")
+
+
+def _world_points(frame: Frame) -> np.ndarray:
+    if frame.world_points is not None:
+        return frame.world_points
+    pts = frame.scan.points
+    if frame.pose is None:
+        return pts
+    return pts @ frame.pose[:3, :3].T + frame.pose[:3, 3]
+
+
+def _scan_colors(scan: Scan) -> np.ndarray | None:
+    if scan.colors is not None:
+        return scan.colors
+    if scan.intensity is not None:
+        return ramp_colors(scan.intensity)
+    return None
+
+
+def _tile_name(ix: int, iy: int) -> str:
+    return f"x{ix}y{iy}".replace("-", "m")
+
+
+def _content_hash(points: np.ndarray, class_ids: np.ndarray, instance_ids: np.ndarray) -> np.ndarray:
+    """A 64-bit hash per point of its position (mm) and labels; summing them gives an order-free tile hash."""
+    mm = np.round(points * 1000.0).astype(np.int64).view(np.uint64)
+    h = mm[:, 0] * np.uint64(0x9E3779B97F4A7C15)
+    h ^= mm[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)
+    h ^= mm[:, 2] * np.uint64(0x165667B19E3779F9)
+    h ^= class_ids.astype(np.uint64) * np.uint64(0x27D4EB2F165667C5)
+    h ^= instance_ids.astype(np.uint64) * np.uint64(0x94D049BB133111EB)
+    return h ^ (h >> np.uint64(29))
+
+
+class RerunSink(Sink):
+    """Streams a run to an .rrd file, a spawned viewer and/or a remote viewer (any combination)."""
+
+    def __init__(
+        self,
+        save: Path | None,
+        spawn: bool,
+        connect: str | None,
+        cfg: RerunConfig,
+        force: bool = False,
+        application_id: str = "aftershock",
+    ) -> None:
+        if save is None and not spawn and connect is None:
+            raise ValueError("RerunSink needs at least one of save, spawn or connect")
+        self.cfg = cfg
+        self.path = check_output(save, force) if save is not None else None
+        sinks: list[rr.FileSink | rr.GrpcSink] = []
+        self.rec = rr.RecordingStream(application_id)
+        rr.set_log_time_enabled(False, recording=self.rec)  # wall-clock time of logging says nothing here
+        if self.path is not None:
+            sinks.append(rr.FileSink(self.path))
+        if connect is not None:
+            try:
+                sinks.append(rr.GrpcSink(connect))
+            except (ValueError, RuntimeError) as exc:
+                raise OutputError(f"not a Rerun gRPC URL ({exc})", connect) from None
+        if spawn:
+            rr.spawn(port=SPAWN_PORT, connect=False, recording=self.rec)
+            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
+        self.rec.set_sinks(*sinks, default_blueprint=L.default_blueprint())
+        self._closed = False
+        self._mcap_times = False
+        self._scan: Scan | None = None  # the scan whose times are currently set
+        self._stats_logged: set[str] = set()  # what was already logged for the scan `_stats_seq`
+        self._stats_seq: int | None = None
+        self._trajectory: list[np.ndarray] = []
+        self._piece = 0
+        self._last_map_seq: int | None = None
+        self._tiles: dict[str, tuple[int, int]] = {}
+        self._map_bounds: tuple[np.ndarray, np.ndarray] | None = None
+        self._embedding_colors = EmbeddingColors()
+
+    # ------------------------------------------------------------------------------------------ hooks
+
+    def begin(self, info: RunInfo) -> None:
+        self._mcap_times = info.source_kind == "mcap"
+        self.rec.send_recording_name(Path(info.source).name or info.source)
+        self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, annotation_context(), static=True)
+        self.rec.log(L.ROBOT, rr.TransformAxes3D(0.5), static=True)
+        what = f"source {info.source} ({info.source_kind}"
+        what += f", topic {info.topic})" if info.topic else ")"
+        what += f", {info.environment}, labeller {info.labeller or 'none'}"
+        self.rec.log(f"{L.LOG}/run", rr.TextLog(what, level="INFO"), static=True)
+
+    def stage(self, frame: Frame, stage: Stage) -> None:
+        self._set_time(frame.scan)
+        if stage is Stage.RAW:
+            self._log_raw(frame)
+        elif stage is Stage.REGISTERED:
+            self._log_registered(frame)
+        elif stage is Stage.LABELLED:
+            self._log_labelled(frame)
+        elif stage is Stage.CLUSTERED:
+            self._log_clustered(frame)
+        self._log_stats(frame)
+
+    def map_update(self, cloud: LabelledCloud, seq: int) -> None:
+        if self._last_map_seq is not None and seq - self._last_map_seq < self.cfg.map_every:
+            return
+        if self._scan is None or self._scan.seq != seq:
+            self.rec.set_time(L.SCAN_TIMELINE, sequence=seq)
+        self._log_map(cloud)
+        self._last_map_seq = seq
+
+    def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+        static = self._scan is None
+        colors = instance_colors(cloud.instance_ids) if cloud.instance_ids is not None else cloud.colors
+        extra = [rr.AnyValues(instance_id=cloud.instance_ids)] if cloud.instance_ids is not None else []
+        self.rec.log(
+            L.REFINED,
+            rr.Points3D(cloud.points, colors=colors, class_ids=cloud.class_ids, radii=SCAN_RADIUS),
+            *extra,
+            static=static,
+        )
+        if not steps:
+            return
+        self.rec.reset_time()
+        for i, (inliers, neighbours) in enumerate(steps):
+            self.rec.set_time(L.LRGNET_STEP_TIMELINE, sequence=i)
+            self.rec.log(
+                f"{L.REFINED_GROWTH}/inliers",
+                rr.Points3D(cloud.points[inliers], colors=GROWTH_INLIER_COLOR, radii=rr.Radius.ui_points(2.5)),
+            )
+            self.rec.log(
+                f"{L.REFINED_GROWTH}/neighbours",
+                rr.Points3D(cloud.points[neighbours], colors=GROWTH_NEIGHBOUR_COLOR, radii=rr.Radius.ui_points(2.5)),
+            )
+            self.rec.log(
+                f"{L.LOG}/lrgnet",
+                rr.TextLog(f"step {i}: {len(inliers)} inliers, {len(neighbours)} neighbours", level="DEBUG"),
+            )
+        self.rec.reset_time()
+        if self._scan is not None:
+            self._set_time(self._scan)
+
+    def damage(self, cracks: list[Crack], crack_points: LabelledCloud | None, stories: list[Story]) -> None:
+        static = self._scan is None
+        if crack_points is not None and len(crack_points):
+            extra = (
+                [rr.AnyValues(instance_id=crack_points.instance_ids)] if crack_points.instance_ids is not None else []
+            )
+            self.rec.log(
+                L.CRACK_POINTS,
+                rr.Points3D(crack_points.points, colors=CRACK_COLOR, radii=CRACK_RADIUS),
+                *extra,
+                static=static,
+            )
+        if cracks:
+            self.rec.log(L.CRACKS, _crack_boxes(cracks), static=static)
+        if stories:
+            self._log_stories(stories, static)
+
+    def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
+        if len(final_map):
+            self._log_map(final_map)
+        text = (
+            f"{summary.scans} scans, {summary.points} points, {summary.map_voxels} map voxels, "
+            f"{summary.instances} instances, {summary.scans_per_second:.2f} scans/s"
+        )
+        if summary.registration_failures:
+            text += f", registration flagged at scans {summary.registration_failures}"
+        if summary.interrupted:
+            text += " (interrupted)"
+        self.rec.log(f"{L.LOG}/summary", rr.TextLog(text, level="INFO"))
+        self.rec.flush()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.rec.flush()
+        self.rec.disconnect()
+
+    # ------------------------------------------------------------------------------------------ layers
+
+    def _set_time(self, scan: Scan) -> None:
+        self._scan = scan
+        if scan.seq != self._stats_seq:
+            self._stats_seq = scan.seq
+            self._stats_logged.clear()
+        self.rec.set_time(L.SCAN_TIMELINE, sequence=scan.seq)
+        if self._mcap_times and scan.log_time_ns is not None:
+            self.rec.set_time(L.MCAP_LOG_TIMELINE, timestamp=_datetime(scan.log_time_ns))
+            self.rec.set_time(L.MCAP_STAMP_TIMELINE, timestamp=_datetime(scan.stamp_ns))
+        else:
+            self.rec.set_time(L.SENSOR_TIMELINE, timestamp=_datetime(scan.stamp_ns))
+
+    def _log_raw(self, frame: Frame) -> None:
+        if not self.cfg.raw_points:
+            return
+        scan = frame.scan
+        self.rec.log(L.RAW, rr.Points3D(scan.points, colors=_scan_colors(scan), radii=SCAN_RADIUS))
+
+    def _log_registered(self, frame: Frame) -> None:
+        if frame.pose is None:
+            return
+        pose = frame.pose
+        self.rec.log(L.ROBOT, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+        self.rec.log(
+            L.REGISTERED, rr.Points3D(_world_points(frame), colors=_scan_colors(frame.scan), radii=SCAN_RADIUS)
+        )
+        self._trajectory.append(pose[:3, 3].copy())
+        self.rec.log(
+            f"{L.TRAJECTORY}/p{self._piece}",
+            rr.LineStrips3D([np.asarray(self._trajectory)], colors=TRAJECTORY_COLOR, radii=rr.Radius.ui_points(4.0)),
+        )
+        if len(self._trajectory) >= TRAJECTORY_PIECE:
+            self._trajectory = [self._trajectory[-1]]
+            self._piece += 1
+        if not frame.registration_ok:
+            note = f": {frame.registration_note}" if frame.registration_note else ""
+            self.rec.log(f"{L.LOG}/registration", rr.TextLog(f"scan {frame.seq} flagged{note}", level="WARN"))
+
+    def _labelled_subset(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """World points kept for labelling, and their indices into the scan."""
+        idx = np.flatnonzero(frame.keep) if frame.keep is not None else np.arange(len(frame.scan))
+        return _world_points(frame)[idx], idx
+
+    def _log_labelled(self, frame: Frame) -> None:
+        if frame.labels is None:
+            return
+        pts, idx = self._labelled_subset(frame)
+        self.rec.log(L.LABELS, rr.Points3D(pts, class_ids=frame.labels.class_ids[idx], radii=SCAN_RADIUS))
+        if self.cfg.embeddings and frame.labels.embeddings is not None:
+            colors = self._embedding_colors(frame.labels.embeddings[idx])
+            self.rec.log(L.EMBEDDING, rr.Points3D(pts, colors=colors, radii=SCAN_RADIUS))
+
+    def _log_clustered(self, frame: Frame) -> None:
+        if frame.labels is None:
+            return
+        pts, idx = self._labelled_subset(frame)
+        inst = frame.labels.instance_ids[idx]
+        self.rec.log(
+            L.INSTANCES,
+            rr.Points3D(pts, colors=instance_colors(inst), class_ids=frame.labels.class_ids[idx], radii=SCAN_RADIUS),
+            rr.AnyValues(instance_id=inst),
+        )
+        for m in frame.merges:
+            merged = ", ".join(str(i) for i in m.merged)
+            self.rec.log(f"{L.LOG}/merges", rr.TextLog(f"scan {m.seq}: instances {merged} merged into {m.into}"))
+
+    def _log_stats(self, frame: Frame) -> None:
+        if "raw_points" not in self._stats_logged:
+            self._stats_logged.add("raw_points")
+            self.rec.log(f"{L.STATS_COUNTS}/raw_points", rr.Scalars(len(frame.scan)))
+        for name, ms in frame.timings_ms.items():
+            key = f"t:{name}"
+            if key not in self._stats_logged:
+                self._stats_logged.add(key)
+                self.rec.log(f"{L.STATS_TIME}/{name}", rr.Scalars(float(ms)))
+        for name, count in frame.counts.items():
+            key = f"c:{name}"
+            if key not in self._stats_logged:
+                self._stats_logged.add(key)
+                self.rec.log(f"{L.STATS_COUNTS}/{name}", rr.Scalars(float(count)))
+
+    def _log_map(self, cloud: LabelledCloud) -> None:
+        """Downsample, cut into tiles, and re-log only the tiles whose content changed since the last update."""
+        if len(cloud) == 0:
+            return
+        keep, _ = voxel_downsample(cloud.points, self.cfg.map_voxel_m)
+        pts = cloud.points[keep]
+        n = len(pts)
+        cls = cloud.class_ids[keep] if cloud.class_ids is not None else np.full(n, UNLABELLED, np.uint16)
+        inst = cloud.instance_ids[keep] if cloud.instance_ids is not None else np.zeros(n, np.uint32)
+        colors = cloud.colors[keep] if cloud.class_ids is None and cloud.colors is not None else None
+        self._map_bounds = (pts.min(axis=0), pts.max(axis=0))
+
+        cell = np.floor(pts[:, :2] / self.cfg.map_tile_m).astype(np.int64)
+        tile_ids, inverse = np.unique(cell, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        order = np.argsort(inverse, kind="stable")
+        starts = np.searchsorted(inverse[order], np.arange(len(tile_ids)))
+        counts = np.bincount(inverse, minlength=len(tile_ids))
+        hashes = np.add.reduceat(_content_hash(pts, cls, inst)[order], starts) if n else np.zeros(0, np.uint64)
+        radius = MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m
+        seen: set[str] = set()
+        for t, (ix, iy) in enumerate(tile_ids):
+            name = f"{L.MAP}/{_tile_name(int(ix), int(iy))}"
+            seen.add(name)
+            signature = (int(counts[t]), int(hashes[t]))
+            if self._tiles.get(name) == signature:
+                continue
+            self._tiles[name] = signature
+            sel = order[starts[t] : starts[t] + counts[t]]
+            self.rec.log(
+                name,
+                rr.Points3D(
+                    pts[sel],
+                    class_ids=cls[sel] if colors is None else None,
+                    colors=colors[sel] if colors is not None else None,
+                    radii=radius,
+                ),
+                rr.AnyValues(instance_id=inst[sel]),
+            )
+        for gone in set(self._tiles) - seen:
+            del self._tiles[gone]
+            self.rec.log(gone, rr.Clear(recursive=False))
+
+    def _log_stories(self, stories: list[Story], static: bool) -> None:
+        lo, hi = self._map_bounds if self._map_bounds is not None else (np.full(3, -5.0), np.full(3, 5.0))
+        cx, cy = (lo[:2] + hi[:2]) / 2
+        half = np.maximum((hi[:2] - lo[:2]) / 2, 0.5)
+        origins, vectors, labels = [], [], []
+        for s in stories:
+            a, b, c, d = (float(v) for v in s.plane)
+            z = -(a * cx + b * cy + d) / c if abs(c) > 1e-6 else s.height_m
+            center = np.array([cx, cy, z])
+            label = f"story {s.index}: drift {s.drift_mm:.1f} mm, tilt {s.tilt_deg:.2f}°"
+            self.rec.log(
+                f"{L.STORIES}/s{s.index}",
+                rr.Boxes3D(
+                    centers=[center],
+                    half_sizes=[[half[0], half[1], 0.005]],
+                    quaternions=[rr.Quaternion(xyzw=_quaternion_to_z(np.array([a, b, c])))],
+                    colors=[(120, 180, 255, 60)],
+                    fill_mode="solid",
+                    labels=[label],
+                ),
+                static=static,
+            )
+            origins.append(center)
+            vectors.append([s.drift_x_mm * DRIFT_ARROW_M_PER_MM, s.drift_y_mm * DRIFT_ARROW_M_PER_MM, 0.0])
+            labels.append(f"{s.drift_mm:.1f} mm")
+        self.rec.log(
+            L.DRIFT, rr.Arrows3D(origins=origins, vectors=vectors, labels=labels, colors=(255, 90, 90)), static=static
+        )
+
+
+def _rotation_to_quaternion(r: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(r).as_quat()
+
+
+def _quaternion_to_z(normal: np.ndarray) -> np.ndarray:
+    """(x, y, z, w) rotation taking +z onto `normal`."""
+    n = normal / max(np.linalg.norm(normal), 1e-12)
+    if n[2] < 0:
+        n = -n
+    axis = np.cross([0.0, 0.0, 1.0], n)
+    s = np.linalg.norm(axis)
+    if s < 1e-9:
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    angle = np.arctan2(s, n[2])
+    return np.append(axis / s * np.sin(angle / 2), np.cos(angle / 2))
+
+
+def _crack_boxes(cracks: list[Crack]) -> rr.Boxes3D:
+    """One box per crack: long side along its axis, short side across it in the surface, thin along the normal."""
+    centers, half_sizes, quats, labels, colors = [], [], [], [], []
+    for c in cracks:
+        axis = c.axis / max(np.linalg.norm(c.axis), 1e-12)
+        normal = c.normal - axis * float(np.dot(c.normal, axis))
+        normal /= max(np.linalg.norm(normal), 1e-12)
+        across = np.cross(normal, axis)
+        quats.append(rr.Quaternion(xyzw=_rotation_to_quaternion(np.stack([axis, across, normal], axis=1))))
+        centers.append(c.center)
+        half_sizes.append([c.length_m / 2, max(c.width_m / 2, 0.002), 0.003])
+        severity = "severe" if c.severe else "hairline"
+        labels.append(
+            f"crack {c.instance_id}: {c.length_m * 100:.1f} cm long, {c.width_m * 1000:.1f} mm wide ({severity})"
+        )
+        colors.append(CRACK_COLOR if c.severe else MILD_CRACK_COLOR)
+    return rr.Boxes3D(centers=centers, half_sizes=half_sizes, quaternions=quats, labels=labels, colors=colors)

@@ -1,0 +1,82 @@
+"""Read an .rrd back for tests: entities, timelines and component values, through rerun-sdk's chunk reader
+(`rerun.chunk.RrdReader`), plus the `rerun rrd verify` command line check."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+from rerun.chunk import RrdReader
+
+
+@dataclass
+class Recording:
+    """What one recording store of an .rrd holds, entity by entity (leading "/" removed from paths)."""
+
+    application_id: str
+    recording_id: str
+    blueprints: int
+    timelines: set[str] = field(default_factory=set)
+    static: dict[str, list[pa.RecordBatch]] = field(default_factory=lambda: defaultdict(list))
+    temporal: dict[str, list[pa.RecordBatch]] = field(default_factory=lambda: defaultdict(list))
+
+    @property
+    def entities(self) -> set[str]:
+        return set(self.static) | set(self.temporal)
+
+    def under(self, prefix: str) -> set[str]:
+        return {e for e in self.entities if e == prefix or e.startswith(prefix + "/")}
+
+    def components(self, entity: str) -> set[str]:
+        return {n for b in self.static.get(entity, []) + self.temporal.get(entity, []) for n in b.schema.names}
+
+    def rows(self, entity: str, component: str, *, static: bool = False) -> list:
+        """The logged values of one component, one entry per row (Python lists), in log order."""
+        batches = (self.static if static else self.temporal).get(entity, [])
+        out: list = []
+        for b in batches:
+            if component in b.schema.names:
+                out.extend(v for v in b.column(component).to_pylist() if v is not None)
+        return out
+
+    def times(self, entity: str, component: str, timeline: str) -> np.ndarray:
+        """The time of each row of `component` on `timeline` (int64: sequence numbers or ns)."""
+        out: list[int] = []
+        for b in self.temporal.get(entity, []):
+            if component in b.schema.names and timeline in b.schema.names:
+                has = b.column(component).is_valid().to_numpy(zero_copy_only=False)
+                t = b.column(timeline).cast(pa.int64()).to_numpy(zero_copy_only=False)
+                out.extend(t[has].tolist())
+        return np.asarray(sorted(out), dtype=np.int64)
+
+    def values(self, entity: str, component: str) -> np.ndarray:
+        """All values of a per-point component over every row, flattened into one array."""
+        rows = self.rows(entity, component)
+        return np.concatenate([np.asarray(r) for r in rows]) if rows else np.zeros(0)
+
+
+def read_rrd(path: str | Path) -> Recording:
+    """Every chunk of the first recording store of an .rrd (works with and without the footer)."""
+    reader = RrdReader(path)
+    stores = reader.recordings()
+    if not stores:
+        raise ValueError(f"{path}: no recording in the file")
+    rec = Recording(stores[0].application_id, stores[0].recording_id, len(reader.blueprints()))
+    for chunk in reader.stream(store=stores[0]):
+        entity = chunk.entity_path.lstrip("/")
+        rec.timelines.update(chunk.timeline_names)
+        (rec.static if chunk.is_static else rec.temporal)[entity].append(chunk.to_record_batch())
+    return rec
+
+
+def rrd_verify(path: str | Path) -> subprocess.CompletedProcess:
+    """`rerun rrd verify PATH` with the rerun command next to this Python."""
+    rerun = Path(sys.executable).with_name("rerun")
+    env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
+    return subprocess.run([str(rerun), "rrd", "verify", str(path)], capture_output=True, text=True, env=env, timeout=120)
