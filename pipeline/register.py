@@ -114,6 +114,14 @@ def se3_exp_apply(twist: np.ndarray, scales: np.ndarray, points: np.ndarray) -> 
     return rp + trans
 
 
+def se3_exp(twist: np.ndarray) -> np.ndarray:
+    """4 x 4 rigid transform of a twist (v, w)."""
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(twist[3:]).as_matrix()
+    out[:3, 3] = se3_exp_apply(twist, np.ones(1), np.zeros((1, 3)))[0]
+    return out
+
+
 def deskew(points: np.ndarray, times: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """KISS-ICP's deskew: point at normalised time s moves by exp((s - 1) log(delta)) into the end-of-sweep frame."""
     t = np.asarray(times, np.float64)
@@ -171,10 +179,22 @@ class Registrar:
                         f"ICP moved the scan {correction:.2f} m away from the constant-velocity prediction"
                     )
         frame.world_points = transform(frame.pose, points)
+        frame.stamp_pose = self._stamp_pose(frame)
         self.frames += 1
         if not frame.registration_ok:
             log.warning("scan %d: %s", scan.seq, frame.registration_note)
         return frame
+
+    def _stamp_pose(self, frame: Frame) -> np.ndarray:
+        """The pose at the scan stamp: the end-of-sweep pose moved back along this sweep's motion."""
+        times = frame.scan.times
+        if not self.cfg.deskew or times is None or not len(times):
+            return frame.pose.copy()
+        t0, t1 = float(times.min()), float(times.max())
+        if not t1 > t0:
+            return frame.pose.copy()
+        s = (0.0 - t0) / (t1 - t0)
+        return frame.pose @ se3_exp((s - 1.0) * se3_log(self.kiss.last_delta))
 
     def _skip(self, frame: Frame, prediction: np.ndarray, note: str) -> None:
         self.kiss.last_pose = prediction

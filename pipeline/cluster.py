@@ -1,0 +1,103 @@
+"""Clustering stage: incremental instance clustering over the voxel map (union–find by connected components).
+
+Each new voxel links to its 26 neighbouring voxels (new ones of the same scan, and older ones that already
+carry an instance) where the labeller's affinity says they agree (for MCPNet: cosine similarity of the
+embeddings above β). Per connected group of links:
+- no older instance in the group: a new instance;
+- one: the new voxels join it;
+- several: the group takes the smallest id and the others are merged into it everywhere in the map.
+Merges are recorded on the frame as `InstanceMerge`s, so the sinks can show them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from time import perf_counter
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from pipeline.types import Frame, InstanceMerge
+from pipeline.voxel_map import VoxelMap
+
+Affinity = Callable[[VoxelMap, np.ndarray, np.ndarray], np.ndarray]
+
+
+class InstanceClusterer:
+    def __init__(self, affinity: Affinity) -> None:
+        self.affinity = affinity
+        self.next_id = 1  # 0 means "no object"
+
+    def add(self, vmap: VoxelMap, new_rows: np.ndarray, seq: int) -> list[InstanceMerge]:
+        """Give the new rows instance ids, merging instances they bridge; returns the merges."""
+        new_rows = np.asarray(new_rows, dtype=np.int64)
+        k = len(new_rows)
+        if not k:
+            return []
+        nb = vmap.neighbour_rows(new_rows, 1)
+        a = np.repeat(np.arange(k), nb.shape[1])
+        b = nb.ravel().astype(np.int64)
+        keep = b >= 0
+        a, b = a[keep], b[keep]
+        order = np.argsort(new_rows)
+        pos = np.searchsorted(new_rows, b, sorter=order).clip(max=k - 1)
+        b_local = order[pos]
+        b_is_new = new_rows[b_local] == b
+        old_ids = vmap.instance_ids[b]
+        # New-new pairs once each (the voxel itself excluded); new-old pairs only to labelled voxels.
+        candidate = np.where(b_is_new, b_local > a, old_ids > 0)
+        a, b, b_local = a[candidate], b[candidate], b_local[candidate]
+        b_is_new, old_ids = b_is_new[candidate], old_ids[candidate]
+        linked = np.asarray(self.affinity(vmap, new_rows[a], b), bool)
+        a, b_local, b_is_new, old_ids = a[linked], b_local[linked], b_is_new[linked], old_ids[linked]
+
+        touched, old_node = np.unique(old_ids[~b_is_new], return_inverse=True)
+        m = len(touched)
+        src = np.r_[a[b_is_new], a[~b_is_new]]
+        dst = np.r_[b_local[b_is_new], k + old_node.ravel()]
+        graph = coo_matrix((np.ones(len(src), np.int8), (src, dst)), shape=(k + m, k + m))
+        ncomp, comp = connected_components(graph, directed=False)
+
+        # Smallest older id per group; groups without one get fresh ids.
+        none = np.iinfo(np.int64).max
+        group_id = np.full(ncomp, none, np.int64)
+        np.minimum.at(group_id, comp[k:], touched.astype(np.int64))
+        fresh = group_id == none
+        group_id[fresh] = self.next_id + np.arange(int(fresh.sum()))
+        self.next_id += int(fresh.sum())
+        vmap.instance_ids[new_rows] = group_id[comp[:k]]
+
+        into = group_id[comp[k:]]
+        merged = into != touched
+        merges: list[InstanceMerge] = []
+        if merged.any():
+            lut = np.arange(self.next_id, dtype=np.uint32)
+            lut[touched[merged]] = into[merged]
+            ids = vmap.instance_ids
+            ids[:] = lut[ids]
+            for target in np.unique(into[merged]):
+                gone = touched[merged & (into == target)]
+                merges.append(InstanceMerge(int(target), tuple(int(g) for g in gone), seq))
+        return merges
+
+
+def cluster_frame(frame: Frame, vmap: VoxelMap, clusterer: InstanceClusterer) -> Frame:
+    if frame.new_voxel_points is not None and len(frame.new_voxel_points):
+        new_rows = vmap.lookup_points(frame.world_points[frame.new_voxel_points])
+        merges = clusterer.add(vmap, new_rows, frame.seq)
+        frame.merges.extend(merges)
+        frame.counts["merges"] = len(merges)
+    if frame.labels is not None and frame.keep is not None and frame.keep.any():
+        idx = np.flatnonzero(frame.keep)
+        frame.labels.instance_ids[idx] = vmap.instance_ids[vmap.lookup_points(frame.world_points[idx])]
+    frame.counts["instances_opened"] = clusterer.next_id - 1
+    return frame
+
+
+def cluster_stage(frames: Iterable[Frame], vmap: VoxelMap, clusterer: InstanceClusterer) -> Iterator[Frame]:
+    for frame in frames:
+        t0 = perf_counter()
+        cluster_frame(frame, vmap, clusterer)
+        frame.timings_ms["cluster"] = (perf_counter() - t0) * 1e3
+        yield frame

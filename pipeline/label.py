@@ -1,0 +1,115 @@
+"""Labelling stage: range-filter each registered scan, open new voxels in the map, let a labeller label them.
+
+A labeller is pluggable (`Labeller` protocol); `make_labeller(name, cfg)` builds one by name. Each lives in
+its own module `pipeline.labellers.<module>` exposing `create(cfg: Config) -> Labeller`, imported only
+when asked for, so a labeller that needs weights costs nothing until it is chosen.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Iterable, Iterator
+from time import perf_counter
+from typing import Final, Protocol, runtime_checkable
+
+import numpy as np
+
+from pipeline.config import Config, Environment
+from pipeline.errors import InputError
+from pipeline.types import Frame, Labels
+from pipeline.voxel_map import VoxelMap
+
+# name -> module under pipeline.labellers
+LABELLERS: Final[dict[str, str]] = {
+    "mcpnet": "mcpnet",
+    "region-growing": "region_growing",
+}
+FALLBACK_LABELLER: Final = "region-growing"
+
+
+@runtime_checkable
+class Labeller(Protocol):
+    """Labels the voxels a scan opened, and says which neighbouring voxels may belong to the same object."""
+
+    name: str
+    embedding_dim: int  # width of the per-voxel embeddings it writes (0 = none)
+
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
+        """Fill `class_ids`, `scores` (and where it has them `normals`, `embeddings`) of the new rows.
+        `frame` is registered (pose, world points) and `frame.keep` marks the points given to the map."""
+        ...
+
+    def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
+        """Per pair of (neighbouring) voxel rows: True where they should join the same instance."""
+        ...
+
+
+def make_labeller(name: str, cfg: Config) -> Labeller:
+    """The labeller called `name`; InputError if unknown, not built, or its weights are missing."""
+    module_name = LABELLERS.get(name)
+    if module_name is None:
+        raise InputError(f"unknown labeller {name!r}; choose one of: {', '.join(LABELLERS)}")
+    full = f"pipeline.labellers.{module_name}"
+    try:
+        module = importlib.import_module(full)
+    except ModuleNotFoundError as exc:
+        if exc.name == full:
+            raise InputError(f"labeller {name!r} is not available in this build") from None
+        raise
+    try:
+        labeller = module.create(cfg)
+    except FileNotFoundError as exc:
+        raise InputError(
+            f"labeller {name!r}: weights not found ({exc.filename or exc}); see `aftershock train --help`"
+        ) from None
+    return labeller
+
+
+def labelling_range(cfg: Config, environment: Environment) -> float:
+    """Horizontal distance from the robot within which points are labelled (2 m indoors, 10 m outdoors)."""
+    return cfg.label.outdoor_range_m if environment is Environment.OUTDOOR else cfg.label.indoor_range_m
+
+
+def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float) -> Frame:
+    scan = frame.scan
+    n = len(scan)
+    if not frame.registration_ok or frame.world_points is None:
+        frame.keep = np.zeros(n, bool)
+        frame.new_voxel_points = np.zeros(0, np.int64)
+        frame.labels = Labels.empty(n)
+        frame.counts.update(kept=0, new_voxels=0, map_voxels=len(vmap))
+        return frame
+    frame.keep = np.hypot(scan.points[:, 0], scan.points[:, 1]) <= range_m
+    idx = np.flatnonzero(frame.keep)
+
+    def pick(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else a[idx]
+
+    first_new = len(vmap)
+    new_rows, rows = vmap.insert(
+        frame.world_points[idx], pick(scan.colors), scan.seq, pick(scan.class_ids), pick(scan.instance_ids)
+    )
+    opened = np.flatnonzero(rows >= first_new)
+    _, first = np.unique(rows[opened], return_index=True)  # rows are numbered in first-point order
+    frame.new_voxel_points = idx[opened[first]]
+    if len(new_rows):
+        labeller.label(vmap, new_rows, frame)
+    labels = Labels.empty(n)
+    labels.class_ids[idx] = vmap.class_ids[rows]
+    labels.instance_ids[idx] = vmap.instance_ids[rows]
+    labels.scores = np.zeros(n, np.float32)
+    labels.scores[idx] = vmap.scores[rows]
+    if vmap.embedding_dim:
+        labels.embeddings = np.zeros((n, vmap.embedding_dim), np.float32)
+        labels.embeddings[idx] = vmap.embeddings[rows]
+    frame.labels = labels
+    frame.counts.update(kept=len(idx), new_voxels=len(new_rows), map_voxels=len(vmap))
+    return frame
+
+
+def label_stage(frames: Iterable[Frame], vmap: VoxelMap, labeller: Labeller, range_m: float) -> Iterator[Frame]:
+    for frame in frames:
+        t0 = perf_counter()
+        label_frame(frame, vmap, labeller, range_m)
+        frame.timings_ms["label"] = (perf_counter() - t0) * 1e3
+        yield frame

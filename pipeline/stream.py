@@ -1,0 +1,249 @@
+"""The stream: scans -> register -> label -> cluster, one frame at a time, with every sink told after each stage.
+
+    result = run_stream(sources.open(path), cfg, sinks, RunInfo(source=path, source_kind="mcap"))
+
+Stages are generator functions chained lazily, so one frame at a time is in flight. The accumulated map
+goes to the sinks every `cfg.rerun.map_every` scans and once at the end. Sinks always get `close()`, and
+after a Ctrl-C also `end()` with what was processed, so their files stay valid; the result then says
+`interrupted`.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from time import perf_counter
+
+import numpy as np
+
+from pipeline.classes import CLASS_NAMES, NUM_CLASSES
+from pipeline.cluster import InstanceClusterer, cluster_stage
+from pipeline.config import Config, Environment
+from pipeline.errors import InputError
+from pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
+from pipeline.register import MIN_POINTS, Registrar, guess_environment, register_stage
+from pipeline.trajectory import TrajectoryError, trajectory_error
+from pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary, Scan
+from pipeline.voxel_map import VoxelMap
+from sinks.base import Sink, Stage
+
+log = logging.getLogger(__name__)
+
+STAGES: tuple[str, ...] = ("source", "register", "label", "cluster", "sinks")
+
+
+@dataclass(slots=True)
+class StreamResult:
+    summary: RunSummary
+    vmap: VoxelMap
+    environment: Environment
+    labeller: str
+    seqs: np.ndarray  # (F,) scan sequence numbers of the frames
+    stamps_ns: np.ndarray  # (F,)
+    poses: np.ndarray  # (F, 4, 4) estimated poses at the scan stamps
+    true_poses: np.ndarray | None  # (F, 4, 4) where every frame had one
+    trajectory: TrajectoryError | None
+    notes: list[str] = field(default_factory=list)
+
+
+def _first_usable(scans: Iterator[Scan], source: str) -> tuple[list[Scan], Scan]:
+    """Scans up to and including the first with enough points to register (InputError if there is none)."""
+    skipped: list[Scan] = []
+    for scan in scans:
+        if len(scan) >= MIN_POINTS:
+            return skipped, scan
+        skipped.append(scan)
+    what = f"{len(skipped)} scans, none with {MIN_POINTS} points or more" if skipped else "no scans"
+    raise InputError(f"no usable scans ({what})", source)
+
+
+def resolve_environment(cfg: Config, first: Scan) -> Environment:
+    env = cfg.label.environment
+    return guess_environment(first) if env is Environment.AUTO else env
+
+
+def choose_labeller(cfg: Config, notice: Callable[[str], None]) -> Labeller:
+    """The configured labeller; the default MCPNet falls back to the baseline (with a notice) when it is
+    not available, a labeller asked for by name does not."""
+    name = cfg.label.labeller
+    try:
+        return make_labeller(name, cfg)
+    except InputError as exc:
+        if "labeller" in cfg.label.model_fields_set or name == FALLBACK_LABELLER:
+            raise
+        notice(f"{exc}; using the {FALLBACK_LABELLER} baseline instead")
+        return make_labeller(FALLBACK_LABELLER, cfg)
+
+
+@contextmanager
+def _no_interrupts() -> Iterator[None]:
+    """Hold off a second Ctrl-C while the sinks finish their files."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _timed_source(scans: Iterable[Scan]) -> Iterator[Frame]:
+    it = iter(scans)
+    while True:
+        t0 = perf_counter()
+        try:
+            scan = next(it)
+        except StopIteration:
+            return
+        frame = Frame(scan)
+        frame.timings_ms["source"] = (perf_counter() - t0) * 1e3
+        yield frame
+
+
+def _tap(frames: Iterable[Frame], sinks: Sequence[Sink], stage: Stage) -> Iterator[Frame]:
+    for frame in frames:
+        t0 = perf_counter()
+        for sink in sinks:
+            sink.stage(frame, stage)
+        frame.timings_ms["sinks"] = frame.timings_ms.get("sinks", 0.0) + (perf_counter() - t0) * 1e3
+        yield frame
+
+
+def instances_per_class(cloud: LabelledCloud) -> dict[str, int]:
+    """Number of instances whose majority class is each class."""
+    if cloud.instance_ids is None or cloud.class_ids is None:
+        return {}
+    inst = cloud.instance_ids.astype(np.int64)
+    cls = cloud.class_ids.astype(np.int64)
+    ok = (inst > 0) & (cls < NUM_CLASSES)
+    if not ok.any():
+        return {}
+    ids, inv = np.unique(inst[ok], return_inverse=True)
+    votes = np.zeros((len(ids), NUM_CLASSES), np.int64)
+    np.add.at(votes, (inv.ravel(), cls[ok]), 1)
+    majority = np.bincount(votes.argmax(1), minlength=NUM_CLASSES)
+    return {CLASS_NAMES[c]: int(majority[c]) for c in np.flatnonzero(majority)}
+
+
+def run_stream(
+    scans: Iterable[Scan],
+    cfg: Config,
+    sinks: Sequence[Sink],
+    info: RunInfo,
+    notice: Callable[[str], None] | None = None,
+) -> StreamResult:
+    """Run the whole stream over `scans`; see the module docstring."""
+    notice = notice or (lambda text: print(f"aftershock: {text}", file=sys.stderr))
+    t_start = perf_counter()
+    it = iter(scans)
+    skipped, first = _first_usable(it, info.source)
+    environment = resolve_environment(cfg, first)
+    cfg = cfg.model_copy(deep=True)
+    cfg.label.environment = environment
+    labeller = choose_labeller(cfg, notice)
+    info.environment = environment.value
+    info.labeller = labeller.name
+
+    vmap = VoxelMap(cfg.map.voxel_size_m, labeller.embedding_dim)
+    registrar = Registrar(cfg.registration, environment)
+    clusterer = InstanceClusterer(labeller.affinity)
+    all_scans = (s for part in (skipped, [first], it) for s in part)
+
+    frames: Iterator[Frame] = _tap(_timed_source(all_scans), sinks, Stage.RAW)
+    frames = _tap(register_stage(frames, registrar), sinks, Stage.REGISTERED)
+    frames = _tap(label_stage(frames, vmap, labeller, labelling_range(cfg, environment)), sinks, Stage.LABELLED)
+    frames = _tap(cluster_stage(frames, vmap, clusterer), sinks, Stage.CLUSTERED)
+
+    summary = RunSummary()
+    seqs: list[int] = []
+    stamps: list[int] = []
+    poses: list[np.ndarray] = []
+    true_poses: list[np.ndarray | None] = []
+    timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
+    map_every = max(1, cfg.rerun.map_every)
+    last_map_seq: int | None = None
+    try:
+        for sink in sinks:
+            sink.begin(info)
+        try:
+            for frame in frames:
+                summary.scans += 1
+                summary.points += len(frame.scan)
+                if not frame.registration_ok:
+                    summary.registration_failures.append(frame.seq)
+                seqs.append(frame.seq)
+                stamps.append(frame.scan.stamp_ns)
+                poses.append(frame.stamp_pose if frame.stamp_pose is not None else frame.pose)
+                true_poses.append(frame.scan.gt_pose)
+                if summary.scans % map_every == 0:
+                    t0 = perf_counter()
+                    cloud = vmap.to_cloud()
+                    for sink in sinks:
+                        sink.map_update(cloud, frame.seq)
+                    frame.timings_ms["sinks"] = frame.timings_ms.get("sinks", 0.0) + (perf_counter() - t0) * 1e3
+                    last_map_seq = frame.seq
+                for name in STAGES:
+                    timings[name] += frame.timings_ms.get(name, 0.0)
+        except KeyboardInterrupt:
+            summary.interrupted = True
+            notice(f"interrupted after {summary.scans} scans; finishing the outputs")
+        with _no_interrupts():
+            final = vmap.to_cloud()
+            if seqs and last_map_seq != seqs[-1]:
+                for sink in sinks:
+                    sink.map_update(final, seqs[-1])
+            _fill_summary(summary, vmap, final, timings, perf_counter() - t_start)
+            for sink in sinks:
+                sink.end(summary, final)
+    finally:
+        with _no_interrupts():
+            _close_all(sinks)
+
+    pose_arr = np.array(poses).reshape(-1, 4, 4)
+    truth = None
+    trajectory = None
+    if true_poses and all(p is not None for p in true_poses):
+        truth = np.array(true_poses).reshape(-1, 4, 4)
+        trajectory = trajectory_error(pose_arr, truth)
+    return StreamResult(
+        summary=summary,
+        vmap=vmap,
+        environment=environment,
+        labeller=labeller.name,
+        seqs=np.array(seqs, np.int64),
+        stamps_ns=np.array(stamps, np.int64),
+        poses=pose_arr,
+        true_poses=truth,
+        trajectory=trajectory,
+    )
+
+
+def _close_all(sinks: Sequence[Sink]) -> None:
+    """Close every sink, even when one fails; the first failure is raised after all were tried."""
+    error: BaseException | None = None
+    for sink in sinks:
+        try:
+            sink.close()
+        except Exception as exc:
+            error = error or exc
+    if error is not None:
+        raise error
+
+
+def _fill_summary(
+    summary: RunSummary, vmap: VoxelMap, final: LabelledCloud, timings: dict[str, float], wall: float
+) -> None:
+    summary.map_voxels = len(vmap)
+    ids = vmap.instance_ids
+    summary.instances = len(np.unique(ids[ids > 0]))
+    summary.instances_per_class = instances_per_class(final)
+    n = max(summary.scans, 1)
+    summary.mean_timings_ms = {k: v / n for k, v in timings.items()}
+    summary.wall_time_s = wall
+    summary.scans_per_second = summary.scans / wall if wall > 0 else 0.0
