@@ -119,6 +119,12 @@ class CrackConfig(_Section):
     max_spacing_m: float = 0.02  # coarser clouds are refused as too sparse to measure cracks
     fit_points: int = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
     weights: str | None = None  # CrackEmbed weights; None = the shipped ones
+    element_voxel_m: float = 0.05  # element extraction: region growing on this grid ...
+    element_radius_m: float = 0.1  # ... joining neighbours within this distance ...
+    element_angle_deg: float = 20.0  # ... whose normals differ by less than this ...
+    element_color_distance: float = 0.15  # ... and colours (RGB in 0..1) by less than this
+    element_min_points: int = 500  # elements with fewer input points are not assessed
+    dims_tolerance: float = 0.3  # picking elements by expected size: each extent within ±30 %
 
 
 class DriftConfig(_Section):
@@ -128,6 +134,9 @@ class DriftConfig(_Section):
     ransac_threshold_m: float = 0.02
     ransac_iterations: int = 1000
     gravity: str = "frame-z"  # frame-z | ground-plane
+    slab_merge_m: float = 0.6  # density bands closer than this (a slab's top and underside) are one slab
+    max_slab_tilt_deg: float = 20.0  # a fitted plane steeper than this is not a slab
+    seed: int = 0
 
 
 class Config(_Section):

@@ -192,3 +192,41 @@ def group_pca(groups: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.nda
     curv[few] = 1.0
     nrm[few] = 0.0
     return nrm.astype(np.float32), curv.astype(np.float32)
+
+
+def block_sums(points: np.ndarray, values: np.ndarray, cell_m: float) -> np.ndarray:
+    """For every point, the sums of `values` (N, K) over all points in the 3×3×3 block of `cell_m` voxels
+    around its voxel: a fast, density-independent neighbourhood (about ±1.5 cells) in O(27 · V log V)."""
+    vals = np.asarray(values, np.float64).reshape(len(points), -1)
+    keys = voxel_keys(points, cell_m)
+    keys -= keys.min(axis=0) - 1
+    dims = keys.max(axis=0) + 2
+    flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+    uniq, inverse = np.unique(flat, return_inverse=True)
+    per_voxel = np.zeros((len(uniq), vals.shape[1]))
+    np.add.at(per_voxel, inverse.reshape(-1), vals)
+    total = np.zeros_like(per_voxel)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                other = uniq + (dx * dims[1] + dy) * dims[2] + dz
+                j = np.minimum(np.searchsorted(uniq, other), len(uniq) - 1)
+                hit = uniq[j] == other
+                total[hit] += per_voxel[j[hit]]
+    return total[inverse.reshape(-1)]
+
+
+def block_pca(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PCA over the 3×3×3 block of `cell_m` voxels around each point (as the crack study did):
+    unit normals (N, 3) (sign-agnostic), curvature (N,) = smallest eigenvalue / sum, and point count (N,)."""
+    pts = np.asarray(points, np.float64)
+    q = pts - pts.mean(axis=0)
+    stats = np.concatenate([np.ones((len(q), 1)), q, (q[:, :, None] * q[:, None, :]).reshape(-1, 9)], axis=1)
+    total = block_sums(q, stats, cell_m)
+    count = total[:, 0]
+    mean = total[:, 1:4] / count[:, None]
+    cov = total[:, 4:].reshape(-1, 3, 3) / count[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    evals, evecs = np.linalg.eigh(cov)
+    sums = evals.sum(axis=1)
+    curvature = np.where(sums > 0, np.clip(evals[:, 0], 0, None) / np.where(sums > 0, sums, 1), 0.0)
+    return evecs[:, :, 0], curvature, count

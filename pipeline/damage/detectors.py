@@ -1,0 +1,167 @@
+"""Unsupervised crack detectors: a registry of anomaly detectors and clustering baselines over point features.
+
+Every detector gives each point a crack score and a threshold (score > threshold = crack), so that all of them
+can be smoothed over space the same way: cracks are spatially coherent, isolated dark specks are not.
+Anomaly detectors are fitted on a seeded sample of at most `fit_points` points and applied to all points
+(one-class SVM and robust covariance are quadratic or worse in the number of points).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Final
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.geometry import block_sums
+
+# K of the clustering baselines per feature set, as in the study (2 to 5 clusters).
+CLUSTERS_PER_FEATURE: Final[dict[str, int]] = {
+    "rgb": 3,
+    "intensity": 3,
+    "normal": 3,
+    "curvature": 2,
+    "fpfh": 2,
+    "crackembed": 5,
+    "shade": 2,
+}
+
+
+class Detector(StrEnum):
+    ISOLATION_FOREST = "isolation-forest"
+    ROBUST_COVARIANCE = "robust-covariance"
+    ONE_CLASS_SVM = "one-class-svm"
+    LOCAL_OUTLIER_FACTOR = "lof"
+    KMEANS = "kmeans"
+    GMM = "gmm"
+    MEAN_SHIFT = "mean-shift"
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """Per-point crack score (higher = more crack-like) and the threshold above which a point is crack."""
+
+    score: np.ndarray
+    threshold: float
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self.score > self.threshold
+
+
+def parse_detector(name: str) -> Detector:
+    try:
+        return Detector(name)
+    except ValueError:
+        raise InputError(f"unknown detector {name!r}; choose from {', '.join(d.value for d in Detector)}") from None
+
+
+def _sample(x: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    return x if len(x) <= n else x[rng.choice(len(x), size=n, replace=False)]
+
+
+def _isolation_forest(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    from sklearn.ensemble import IsolationForest
+
+    forest = IsolationForest(n_estimators=100, random_state=seed).fit(fit)
+    return Detection(-forest.decision_function(x), 0.0)  # crack = negative decision function
+
+
+def _robust_covariance(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    from sklearn.covariance import EllipticEnvelope
+
+    env = EllipticEnvelope(contamination=0.1, random_state=seed).fit(fit)
+    return Detection(-env.decision_function(x), 0.0)
+
+
+def _one_class_svm(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    from sklearn.svm import OneClassSVM
+
+    svm = OneClassSVM(gamma="scale", nu=0.1).fit(fit[: min(len(fit), 5000)])
+    return Detection(-svm.decision_function(x), 0.0)
+
+
+def _lof(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    from sklearn.neighbors import LocalOutlierFactor
+
+    lof = LocalOutlierFactor(n_neighbors=5, novelty=True).fit(fit)
+    return Detection(-lof.decision_function(x), 0.0)
+
+
+def _smallest_cluster(labels: np.ndarray, k: int) -> Detection:
+    counts = np.bincount(labels, minlength=k)
+    counts[counts == 0] = np.iinfo(np.int64).max
+    return Detection((labels == int(np.argmin(counts))).astype(np.float64), 0.5)
+
+
+def _kmeans(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    from sklearn.cluster import KMeans
+
+    model = KMeans(n_clusters=k, n_init=3, random_state=seed).fit(fit)
+    return _smallest_cluster(model.predict(x), k)
+
+
+def _gmm(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    from sklearn.mixture import GaussianMixture
+
+    model = GaussianMixture(n_components=k, covariance_type="full", random_state=seed, reg_covar=1e-4).fit(fit)
+    return _smallest_cluster(model.predict(x), k)
+
+
+def _mean_shift(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    """Mean-shift modes on the sample; points far from every mode (the study's `cluster_all=False` orphans)
+    and points of the smallest mode are crack."""
+    from sklearn.cluster import MeanShift, estimate_bandwidth
+
+    small = fit[: min(len(fit), 5000)]
+    bandwidth = estimate_bandwidth(small, quantile=0.2, random_state=seed) or 1.0
+    model = MeanShift(bandwidth=bandwidth, bin_seeding=True, cluster_all=False, min_bin_freq=5).fit(small)
+    centres = model.cluster_centers_
+    dist = np.linalg.norm(x[:, None, :] - centres[None, :, :], axis=2)
+    nearest = dist.argmin(axis=1)
+    orphan = dist.min(axis=1) > bandwidth
+    counts = np.bincount(nearest[~orphan], minlength=len(centres))
+    if len(centres) > 1:
+        orphan |= nearest == int(np.argmin(counts))
+    return Detection(orphan.astype(np.float64), 0.5)
+
+
+_DETECTORS: Final[dict[Detector, Callable[[np.ndarray, np.ndarray, int, int], Detection]]] = {
+    Detector.ISOLATION_FOREST: _isolation_forest,
+    Detector.ROBUST_COVARIANCE: _robust_covariance,
+    Detector.ONE_CLASS_SVM: _one_class_svm,
+    Detector.LOCAL_OUTLIER_FACTOR: _lof,
+    Detector.KMEANS: _kmeans,
+    Detector.GMM: _gmm,
+    Detector.MEAN_SHIFT: _mean_shift,
+}
+
+
+def detect(
+    features: np.ndarray,
+    detector: Detector | str,
+    *,
+    seed: int = 0,
+    fit_points: int = 20000,
+    clusters: int = 2,
+) -> Detection:
+    """Run one detector over (N, D) features. Features are standardised first (robust covariance, SVM and
+    k-means are not scale-free); the isolation forest does not need it but does not mind."""
+    kind = parse_detector(detector) if isinstance(detector, str) else detector
+    x = np.asarray(features, np.float64)
+    std = x.std(axis=0)
+    x = (x - x.mean(axis=0)) / np.where(std > 0, std, 1.0)
+    rng = np.random.default_rng(seed)
+    fit = _sample(x, fit_points, rng)
+    return _DETECTORS[kind](x, fit, seed, clusters)
+
+
+def smooth(points: np.ndarray, detection: Detection, cell_m: float) -> Detection:
+    """The mean score over the 3×3×3 block of `cell_m` voxels around each point (0 = no smoothing)."""
+    if cell_m <= 0:
+        return detection
+    sums = block_sums(points, np.stack([detection.score, np.ones(len(points))], axis=1), cell_m)
+    return Detection(sums[:, 0] / sums[:, 1], detection.threshold)

@@ -1,0 +1,180 @@
+"""Story drift and tilt: floor and ceiling slabs from the point density along the up axis, one RANSAC plane
+per slab, and each upper plane's horizontal drift and tilt against the lowest one.
+
+Where "up" comes from is stated in every result (`gravity`):
+- `frame-z`: the input frame's z axis is taken as vertical (a map registered from a levelled start, or a
+  simulator world);
+- `ground-plane`: the lowest slab's plane is taken as level; the cloud is turned so that its normal is z
+  before the stories are measured (tilts are always against the lowest plane either way).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Final
+
+import numpy as np
+from scipy.ndimage import median_filter
+
+from pipeline.config import DriftConfig
+from pipeline.types import Story
+
+_MIN_SLAB_POINTS: Final = 50
+_RANSAC_SCORE_POINTS: Final = 4000  # hypotheses are scored on a sample; the winner is refined on all points
+
+
+class Gravity(StrEnum):
+    FRAME_Z = "frame-z"
+    GROUND_PLANE = "ground-plane"
+
+
+@dataclass(slots=True)
+class DriftResult:
+    stories: list[Story]
+    gravity: str
+    slab_bands: list[tuple[float, float]] = field(default_factory=list)  # z ranges taken as slabs
+    notes: list[str] = field(default_factory=list)
+
+
+def slab_bands(z: np.ndarray, bin_m: float, ratio: float, neighbourhood: int, merge_m: float) -> list[tuple[float, float]]:
+    """z ranges whose point density is more than `ratio` times the median of the surrounding bins; bands
+    closer than `merge_m` (the top and underside of one slab) are joined."""
+    if len(z) == 0:
+        return []
+    lo = float(z.min())
+    edges = lo + bin_m * np.arange(int(np.ceil((z.max() - lo) / bin_m)) + 2)
+    counts, _ = np.histogram(z, bins=edges)
+    size = 2 * (neighbourhood // 2) + 1
+    local = median_filter(counts.astype(np.float64), size=size, mode="constant", cval=0.0)
+    # Around an empty stretch the median is 0; a slab then needs at least the median of all non-empty bins.
+    floor = np.median(counts[counts > 0]) if np.any(counts > 0) else 0.0
+    slab = counts > ratio * np.maximum(local, floor * 0.5)
+    bands: list[tuple[float, float]] = []
+    idx = np.flatnonzero(slab)
+    if len(idx) == 0:
+        return bands
+    splits = np.flatnonzero(np.diff(idx) > 1) + 1
+    for run in np.split(idx, splits):  # one iteration per slab band
+        start, stop = float(edges[run[0]]), float(edges[run[-1] + 1])
+        if bands and start - bands[-1][1] < merge_m:
+            bands[-1] = (bands[-1][0], stop)
+        else:
+            bands.append((start, stop))
+    return bands
+
+
+def fit_plane_lsq(points: np.ndarray) -> np.ndarray:
+    """Least-squares plane (a, b, c, d), unit normal with c ≥ 0."""
+    centroid = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centroid, full_matrices=False)
+    n = vt[-1] if vt[-1, 2] >= 0 else -vt[-1]
+    return np.append(n, -n @ centroid)
+
+
+def ransac_plane(points: np.ndarray, threshold_m: float, iterations: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Plane (4,) and inlier mask: all hypotheses drawn and scored at once on a sample, the best refined by
+    least squares over its inliers among all points."""
+    n = len(points)
+    tri = points[rng.integers(0, n, size=(iterations, 3))]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(normals, axis=1)
+    good = norm > 1e-12
+    normals, tri = normals[good] / norm[good, None], tri[good]
+    d = -np.einsum("ij,ij->i", normals, tri[:, 0])
+    sample = points[rng.choice(n, size=min(n, _RANSAC_SCORE_POINTS), replace=False)]
+    support = (np.abs(sample @ normals.T + d) < threshold_m).sum(axis=0)
+    best = int(np.argmax(support))
+    plane = np.append(normals[best], d[best])
+    for _ in range(3):  # refine: least squares on the inliers, then re-select them
+        inliers = np.abs(points @ plane[:3] + plane[3]) < threshold_m
+        if inliers.sum() < 3:
+            break
+        plane = fit_plane_lsq(points[inliers])
+    inliers = np.abs(points @ plane[:3] + plane[3]) < threshold_m
+    return plane, inliers
+
+
+def _level(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) that takes `normal` to +z by the shortest turn."""
+    z = np.array([0.0, 0.0, 1.0])
+    v = np.cross(normal, z)
+    s, c = np.linalg.norm(v), float(normal @ z)
+    if s < 1e-12:
+        return np.eye(3)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx * ((1 - c) / s**2)
+
+
+def tilt_angles(normal: np.ndarray) -> tuple[float, float, float]:
+    """Tilt of a unit normal from +z in degrees: about x (positive = turned from +z towards −y), about y
+    (towards +x), and the total angle."""
+    n = normal / np.linalg.norm(normal)
+    about_x = np.degrees(np.arctan2(-n[1], n[2]))
+    about_y = np.degrees(np.arctan2(n[0], n[2]))
+    total = np.degrees(np.arccos(np.clip(n[2], -1.0, 1.0)))
+    return float(about_x), float(about_y), float(total)
+
+
+def footprint_centre(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Horizontal (x, y) centre of a slab: the middle of its extent, robust to a few stray points."""
+    lo = np.percentile(points[:, :2], 0.1, axis=0)
+    hi = np.percentile(points[:, :2], 99.9, axis=0)
+    return (lo + hi) / 2
+
+
+def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
+    """Stories (lowest first) of a structure: each slab plane with its drift (mm) and tilt (°) against the
+    lowest plane. Fewer than two slabs gives the slabs found with zero drift, and a note."""
+    gravity = Gravity(cfg.gravity)
+    pts = np.asarray(points, np.float64)
+    notes: list[str] = []
+    rot = np.eye(3)
+    rng = np.random.default_rng(cfg.seed)
+    if len(pts) < _MIN_SLAB_POINTS:
+        return DriftResult([], gravity.value, notes=["too few points to find story slabs"])
+    if gravity is Gravity.GROUND_PLANE:
+        bands = slab_bands(pts[:, 2], cfg.bin_m, cfg.density_ratio, cfg.neighbourhood_bins, cfg.slab_merge_m)
+        if bands:
+            lo, hi = bands[0]
+            low = pts[(pts[:, 2] >= lo) & (pts[:, 2] < hi)]
+            plane, _ = ransac_plane(low, cfg.ransac_threshold_m, cfg.ransac_iterations, rng)
+            rot = _level(pts, plane[:3])
+            pts = pts @ rot.T
+    bands = slab_bands(pts[:, 2], cfg.bin_m, cfg.density_ratio, cfg.neighbourhood_bins, cfg.slab_merge_m)
+    planes: list[tuple[np.ndarray, np.ndarray, int, float]] = []
+    for lo, hi in bands:  # one iteration per slab
+        band = pts[(pts[:, 2] >= lo - cfg.bin_m) & (pts[:, 2] < hi + cfg.bin_m)]
+        if len(band) < _MIN_SLAB_POINTS:
+            continue
+        plane, inliers = ransac_plane(band, cfg.ransac_threshold_m, cfg.ransac_iterations, rng)
+        if inliers.sum() < _MIN_SLAB_POINTS or abs(plane[2]) < np.cos(np.deg2rad(cfg.max_slab_tilt_deg)):
+            continue
+        on = band[inliers]
+        planes.append((plane, footprint_centre(on, plane), int(inliers.sum()), float(np.median(on[:, 2]))))
+    if len(planes) < 2:
+        notes.append(f"{len(planes)} story slab(s) found: drift needs at least two")
+    stories: list[Story] = []
+    if not planes:
+        return DriftResult(stories, gravity.value, bands, notes)
+    base_plane, base_centre, _, _ = planes[0]
+    to_base = _level(pts, base_plane[:3])  # tilts against the lowest plane
+    for i, (plane, centre, count, height) in enumerate(planes):
+        tx, ty, total = tilt_angles(to_base @ plane[:3])
+        drift = (centre - base_centre) * 1000.0
+        world_plane = np.append(rot.T @ plane[:3], plane[3])  # back to the input frame
+        stories.append(
+            Story(
+                index=i,
+                height_m=height,
+                plane=world_plane,
+                drift_x_mm=float(drift[0]),
+                drift_y_mm=float(drift[1]),
+                drift_mm=float(np.hypot(*drift)),
+                tilt_x_deg=tx,
+                tilt_y_deg=ty,
+                tilt_deg=total,
+                num_points=count,
+            )
+        )
+    return DriftResult(stories, gravity.value, bands, notes)
