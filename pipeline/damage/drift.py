@@ -37,7 +37,9 @@ class DriftResult:
     notes: list[str] = field(default_factory=list)
 
 
-def slab_bands(z: np.ndarray, bin_m: float, ratio: float, neighbourhood: int, merge_m: float) -> list[tuple[float, float]]:
+def slab_bands(
+    z: np.ndarray, bin_m: float, ratio: float, neighbourhood: int, merge_m: float
+) -> list[tuple[float, float]]:
     """z ranges whose point density is more than `ratio` times the median of the surrounding bins; bands
     closer than `merge_m` (the top and underside of one slab) are joined."""
     if len(z) == 0:
@@ -72,7 +74,9 @@ def fit_plane_lsq(points: np.ndarray) -> np.ndarray:
     return np.append(n, -n @ centroid)
 
 
-def ransac_plane(points: np.ndarray, threshold_m: float, iterations: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def ransac_plane(
+    points: np.ndarray, threshold_m: float, iterations: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """Plane (4,) and inlier mask: all hypotheses drawn and scored at once on a sample, the best refined by
     least squares over its inliers among all points."""
     n = len(points)

@@ -110,7 +110,9 @@ def parse_features(name: str) -> FeatureSet:
     try:
         return FeatureSet(name)
     except ValueError:
-        raise InputError(f"unknown feature set {name!r}; choose from {', '.join(f.value for f in FeatureSet)}") from None
+        raise InputError(
+            f"unknown feature set {name!r}; choose from {', '.join(f.value for f in FeatureSet)}"
+        ) from None
 
 
 def compute_features(cloud: LabelledCloud, features: FeatureSet | str, cfg: CrackConfig) -> np.ndarray:

@@ -167,9 +167,7 @@ class Scores:
     found_width_m: float
 
 
-def score(
-    points: np.ndarray, predicted: np.ndarray, truth: np.ndarray, link_m: float, min_points: int
-) -> Scores:
+def score(points: np.ndarray, predicted: np.ndarray, truth: np.ndarray, link_m: float, min_points: int) -> Scores:
     """Precision, recall and F1 over the points of the evaluated cloud; length and width errors of the main
     (largest) true crack against the predicted crack instance that overlaps it most (its whole instance,
     false positives included, not only the overlap — a stricter test than the original's)."""
