@@ -184,11 +184,7 @@ def register(app: typer.Typer) -> None:
         src = resolve_source(source)
         scans, info = open_scans(src, cfg, quiet)
         sinks = make_sinks(cfg, save, spawn, connect, mcap_out, export, force)
-        outputs = {
-            k: str(v)
-            for k, v in (("rerun", save), ("mcap", mcap_out), ("export", export))
-            if v is not None
-        }
+        outputs = {k: str(v) for k, v in (("rerun", save), ("mcap", mcap_out), ("export", export)) if v is not None}
         notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
         result = run_stream(scans, cfg, sinks, info, notice)
         if as_json:
