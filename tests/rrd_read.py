@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import warnings
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,6 +56,10 @@ class Recording:
                 out.extend(t[has].tolist())
         return np.asarray(sorted(out), dtype=np.int64)
 
+    def texts(self, entity: str, component: str = "TextLog:text", *, static: bool = False) -> list[str]:
+        """Every string logged on an entity (text logs by default), flattened over rows."""
+        return [t for row in self.rows(entity, component, static=static) for t in row]
+
     def values(self, entity: str, component: str) -> np.ndarray:
         """All values of a per-point component over every row, flattened into one array."""
         rows = self.rows(entity, component)
@@ -63,7 +68,9 @@ class Recording:
 
 def read_rrd(path: str | Path) -> Recording:
     """Every chunk of the first recording store of an .rrd (works with and without the footer)."""
-    reader = RrdReader(path)
+    with warnings.catch_warnings():  # a recording received over gRPC has no footer: read it front to back
+        warnings.simplefilter("ignore")
+        reader = RrdReader(path)
     stores = reader.recordings()
     if not stores:
         raise ValueError(f"{path}: no recording in the file")
@@ -79,4 +86,5 @@ def rrd_verify(path: str | Path) -> subprocess.CompletedProcess:
     """`rerun rrd verify PATH` with the rerun command next to this Python."""
     rerun = Path(sys.executable).with_name("rerun")
     env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
-    return subprocess.run([str(rerun), "rrd", "verify", str(path)], capture_output=True, text=True, env=env, timeout=120)
+    cmd = [str(rerun), "rrd", "verify", str(path)]
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120)

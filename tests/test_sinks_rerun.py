@@ -1,0 +1,287 @@
+"""The Rerun sink, checked by reading real recordings back: entities, timelines, scans logged, class ids."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun.chunk import McapReader, RrdReader
+from rrd_read import read_rrd, rrd_verify
+from sinks_data import VELODYNE, frames, map_of
+
+from pipeline.classes import UNLABELLED
+from pipeline.config import RerunConfig
+from pipeline.errors import OutputError
+from pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Story
+from sinks import rerun_blueprint as L
+from sinks.base import Stage
+from sinks.rerun_sink import EmbeddingColors, RerunSink
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _run(path: Path, log: Path, *, source_kind: str = "mcap", repeat: int = 1, **cfg: object) -> list:
+    sink = RerunSink(path, False, None, RerunConfig(**cfg))
+    sink.begin(RunInfo(source=str(log), source_kind=source_kind, topic="/velodyne_points", labeller="rule"))
+    done = []
+    try:
+        for frame in frames(log, repeat):
+            for stage in Stage:
+                sink.stage(frame, stage)
+            done.append(frame)
+            sink.map_update(map_of(done), frame.seq)
+        sink.end(RunSummary(scans=len(done)), map_of(done))
+    finally:
+        sink.close()
+    return done
+
+
+@pytest.fixture(scope="module")
+def velodyne(lidar_dir: Path) -> Path:
+    return lidar_dir / VELODYNE
+
+
+@pytest.fixture(scope="module")
+def recorded(velodyne: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list]:
+    path = tmp_path_factory.mktemp("rrd") / "run.rrd"
+    done = _run(path, velodyne, map_every=2)
+    return path, done
+
+
+def test_recording_has_the_layout(recorded: tuple[Path, list]) -> None:
+    path, done = recorded
+    rec = read_rrd(path)
+    assert rec.application_id == "aftershock"
+    assert rec.blueprints == 1  # the default blueprint travels with the file
+    for entity in (L.WORLD, L.ROBOT, L.RAW, L.REGISTERED, L.LABELS, L.INSTANCES, L.EMBEDDING, f"{L.TRAJECTORY}/p0"):
+        assert entity in rec.entities, entity
+    assert rec.under(L.MAP), "no map tiles"
+    assert {"stats/time_ms/register", "stats/time_ms/label", "stats/counts/kept", "log/merges"} <= rec.entities
+    assert "AnnotationContext:context" in rec.components(L.WORLD)
+    assert "instance_id" in rec.components(L.INSTANCES)
+    # every scan logged once per layer, on the scan timeline
+    seqs = [f.seq for f in done]
+    layers = ((L.LABELS, "Points3D:class_ids"), (L.RAW, "Points3D:positions"), (L.ROBOT, "Transform3D:translation"))
+    for entity, component in layers:
+        assert rec.times(entity, component, L.SCAN_TIMELINE).tolist() == seqs, entity
+    assert len(rec.rows("stats/time_ms/register", "Scalars:scalars")) == len(done)
+
+
+def test_recording_holds_what_went_in(recorded: tuple[Path, list]) -> None:
+    path, done = recorded
+    rec = read_rrd(path)
+    sent = np.concatenate([f.labels.class_ids[f.keep] for f in done])
+    got = rec.values(L.LABELS, "Points3D:class_ids")
+    assert len(got) == len(sent) and set(np.unique(got)) == set(np.unique(sent))
+    assert UNLABELLED not in set(np.unique(got))  # only the points kept for labelling are shown
+    inst = rec.values(L.INSTANCES, "instance_id")
+    assert np.array_equal(inst, np.concatenate([f.labels.instance_ids[f.keep] for f in done]))
+    positions = np.asarray(rec.rows(L.ROBOT, "Transform3D:translation"))
+    assert np.allclose(positions.reshape(len(done), 3), [f.pose[:3, 3] for f in done])
+    map_classes = np.concatenate([rec.values(e, "Points3D:class_ids") for e in rec.under(L.MAP)])
+    assert set(np.unique(map_classes)) <= set(np.unique(sent))
+    assert rec.texts("log/summary")[0].startswith(f"{len(done)} scans")
+    assert rrd_verify(path).returncode == 0
+    assert len(RrdReader(path).store()) > 0  # the footer was written on close
+
+
+def test_timelines_line_up_with_rerun_mcap_import(recorded: tuple[Path, list], velodyne: Path) -> None:
+    path, _ = recorded
+    rec = read_rrd(path)
+    assert rec.timelines == {L.SCAN_TIMELINE, L.MCAP_LOG_TIMELINE, L.MCAP_STAMP_TIMELINE}
+    imported: dict[str, set[int]] = {L.MCAP_LOG_TIMELINE: set(), L.MCAP_STAMP_TIMELINE: set()}
+    for chunk in McapReader(velodyne).stream():
+        if chunk.entity_path == "/velodyne_points" and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            for name, times in imported.items():
+                times.update(batch.column(name).cast("int64").to_pylist())
+    assert imported[L.MCAP_LOG_TIMELINE], "Rerun's MCAP import has no message_log_time"
+    for name, times in imported.items():
+        assert set(rec.times(L.LABELS, "Points3D:class_ids", name).tolist()) == times, name
+
+
+def test_other_sources_use_sensor_time(velodyne: Path, tmp_path: Path) -> None:
+    path = tmp_path / "files.rrd"
+    done = _run(path, velodyne, source_kind="files")
+    rec = read_rrd(path)
+    assert rec.timelines == {L.SCAN_TIMELINE, L.SENSOR_TIMELINE}
+    stamps = rec.times(L.LABELS, "Points3D:class_ids", L.SENSOR_TIMELINE)
+    assert stamps.tolist() == [f.scan.stamp_ns for f in done]
+
+
+def test_map_relogs_only_changed_tiles(tmp_path: Path) -> None:
+    path = tmp_path / "map.rrd"
+    sink = RerunSink(path, False, None, RerunConfig(map_every=1, map_tile_m=10.0, map_voxel_m=0.1))
+    sink.begin(RunInfo("m", "sim"))
+    rng = np.random.default_rng(0)
+    a = rng.uniform([0, 0, 0], [9, 9, 3], (2000, 3))  # tile x0y0
+    b = rng.uniform([-9, 0, 0], [-1, 9, 3], (2000, 3))  # tile xm1y0
+    cls = np.full(4000, 2, np.uint16)
+    cloud = LabelledCloud(np.vstack([a, b]), class_ids=cls, instance_ids=np.ones(4000, np.uint32))
+    sink.map_update(cloud, 0)
+    sink.map_update(cloud, 1)  # nothing changed
+    cls2 = cls.copy()
+    cls2[:10] = 4  # a relabel inside x0y0 only
+    sink.map_update(LabelledCloud(cloud.points, class_ids=cls2, instance_ids=cloud.instance_ids), 2)
+    sink.close()
+    rec = read_rrd(path)
+    assert rec.under(L.MAP) == {f"{L.MAP}/x0y0", f"{L.MAP}/xm1y0"}
+    assert rec.times(f"{L.MAP}/x0y0", "Points3D:positions", L.SCAN_TIMELINE).tolist() == [0, 2]
+    assert rec.times(f"{L.MAP}/xm1y0", "Points3D:positions", L.SCAN_TIMELINE).tolist() == [0]
+    # downsampled to the map voxel: at most one point per 10 cm voxel
+    pts = np.asarray(rec.rows(f"{L.MAP}/x0y0", "Points3D:positions")[0])
+    assert len(np.unique(np.floor(pts / 0.1), axis=0)) == len(pts)
+
+
+def test_refined_growth_and_damage_layers(tmp_path: Path) -> None:
+    path = tmp_path / "layers.rrd"
+    sink = RerunSink(path, False, None, RerunConfig())
+    sink.begin(RunInfo("cloud.ply", "files"))
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(0, 2, (500, 3))
+    inst = (pts[:, 0] > 1).astype(np.uint32) + 1
+    cloud = LabelledCloud(pts, class_ids=np.full(500, 4, np.uint16), instance_ids=inst)
+    steps = [(np.arange(k * 10), np.arange(k * 10, k * 10 + 20)) for k in range(1, 6)]
+    sink.refined(cloud, steps)
+    crack = Crack(3, np.array([1.0, 1.0, 1.0]), 0.25, 0.004, 120, np.array([0, 0, 1.0]), np.array([1.0, 0, 0]), True)
+    story = Story(1, 3.0, np.array([0, 0, 1.0, -3.0]), 3.0, 4.0, 5.0, 0.1, 0.1, 0.14, 1000)
+    sink.damage([crack], LabelledCloud(pts[:50], instance_ids=np.full(50, 3, np.uint32)), [story])
+    sink.close()
+    rec = read_rrd(path)
+    assert L.LRGNET_STEP_TIMELINE in rec.timelines
+    growth = rec.times(f"{L.REFINED_GROWTH}/inliers", "Points3D:positions", L.LRGNET_STEP_TIMELINE)
+    assert growth.tolist() == [0, 1, 2, 3, 4]
+    assert [len(r) for r in rec.rows(f"{L.REFINED_GROWTH}/neighbours", "Points3D:positions")] == [20] * 5
+    assert np.array_equal(np.concatenate(rec.rows(L.REFINED, "instance_id", static=True)), inst)
+    label = rec.texts(L.CRACKS, "Boxes3D:labels", static=True)[0]
+    assert "25.0 cm long" in label and "4.0 mm wide" in label
+    assert "5.0 mm" in rec.texts(L.DRIFT, "Arrows3D:labels", static=True)[0]
+    assert f"{L.STORIES}/s1" in rec.entities
+
+
+def test_embedding_colours_are_stable_across_scans() -> None:
+    rng = np.random.default_rng(2)
+    first = rng.normal(size=(300, 16))
+    colors = EmbeddingColors()
+    a = colors(first)
+    colors(rng.normal(size=(300, 16)) + 5.0)  # a later scan does not refit
+    assert np.array_equal(colors(first), a)
+    assert a.dtype == np.uint8 and a.shape == (300, 3) and a.std() > 10
+
+
+def test_outputs_are_checked_before_any_work(tmp_path: Path) -> None:
+    existing = tmp_path / "old.rrd"
+    existing.write_bytes(b"x")
+    with pytest.raises(OutputError, match="already exists"):
+        RerunSink(existing, False, None, RerunConfig())
+    RerunSink(existing, False, None, RerunConfig(), force=True).close()
+    assert existing.stat().st_size > 1
+    not_a_folder = tmp_path / "file.txt"
+    not_a_folder.write_text("x")
+    with pytest.raises(OutputError, match="cannot create the folder"):
+        RerunSink(not_a_folder / "x.rrd", False, None, RerunConfig())
+
+
+def test_bad_connect_url_is_an_output_error() -> None:
+    with pytest.raises(OutputError):
+        RerunSink(None, False, "http://localhost:9876", RerunConfig())
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_connect_streams_to_a_viewer_server(velodyne: Path, tmp_path: Path) -> None:
+    port, out = _free_port(), tmp_path / "received.rrd"
+    rerun = Path(sys.executable).with_name("rerun")
+    env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
+    server = subprocess.Popen(
+        [str(rerun), "--bind", "127.0.0.1", "--port", str(port), "--save", str(out)],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.2)
+        sink = RerunSink(None, False, f"rerun+http://127.0.0.1:{port}/proxy", RerunConfig())
+        sink.begin(RunInfo(str(velodyne), "mcap"))
+        n = 0
+        for frame in frames(velodyne):
+            for stage in Stage:
+                sink.stage(frame, stage)
+            n += 1
+        sink.close()
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            time.sleep(0.5)
+            try:
+                if len(read_rrd(out).rows(L.LABELS, "Points3D:class_ids")) == n:
+                    break
+            except Exception:  # the server may still be writing the first bytes
+                continue
+    finally:
+        server.send_signal(signal.SIGINT)
+        server.wait(timeout=20)
+    assert len(read_rrd(out).rows(L.LABELS, "Points3D:class_ids")) == n
+
+
+_CHILD = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    from pipeline.config import RerunConfig
+    from pipeline.types import RunInfo, RunSummary
+    from sinks.base import Stage
+    from sinks.rerun_sink import RerunSink
+    from sinks_data import frames, map_of
+
+    log, out = Path(sys.argv[1]), Path(sys.argv[2])
+    sink = RerunSink(out, False, None, RerunConfig(map_every=1))
+    sink.begin(RunInfo(str(log), "mcap"))
+    done = []
+    try:
+        for frame in frames(log, repeat=10_000):
+            for stage in Stage:
+                sink.stage(frame, stage)
+            done.append(frame)
+            sink.map_update(map_of(done[-4:]), frame.seq)
+            print(frame.seq, flush=True)
+    except KeyboardInterrupt:
+        sink.end(RunSummary(scans=len(done), interrupted=True), map_of(done[-4:]))
+    finally:
+        sink.close()
+    """
+)
+
+
+def test_ctrl_c_leaves_a_readable_recording(velodyne: Path, tmp_path: Path) -> None:
+    out = tmp_path / "interrupted.rrd"
+    env = dict(os.environ, CI="true", PYTHONPATH=f"{REPO}{os.pathsep}{REPO / 'tests'}")
+    child = subprocess.Popen(
+        [sys.executable, "-c", _CHILD, str(velodyne), str(out)], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True
+    )
+    assert child.stdout is not None
+    for _ in range(6):  # let it log a few scans, then interrupt it mid-run
+        assert child.stdout.readline(), "the child stopped before it was interrupted"
+    child.send_signal(signal.SIGINT)
+    child.wait(timeout=60)
+    assert child.returncode == 0
+    rec = read_rrd(out)
+    scans = rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)
+    assert len(scans) >= 6 and scans.tolist() == list(range(len(scans)))
+    assert "(interrupted)" in rec.texts("log/summary")[0]
+    assert rrd_verify(out).returncode == 0
+    assert len(RrdReader(out).store()) > 0
