@@ -133,11 +133,10 @@ def read_pcd(path: Path) -> dict[str, np.ndarray]:
             table = np.loadtxt(body.decode("ascii").splitlines(), dtype=np.float64, ndmin=2)[:n]
             start = 0
             for name, base, c in zip(names, bases, counts, strict=True):
-                cols[name] = table[:, start : start + c].astype(base).reshape(n, c).squeeze(axis=1 if c == 1 else None)
+                if name != "_":
+                    block = table[:, start : start + c].astype(base)
+                    cols[name] = block[:, 0] if c == 1 else block
                 start += c
-            if "rgb" in cols or "rgba" in cols:  # ascii rgb is the float32 bit pattern written as a number
-                key = "rgb" if "rgb" in cols else "rgba"
-                cols[key] = cols[key].astype(np.float32)
         elif kind == "binary":
             layout = [
                 (f"_{i}" if name == "_" else name, base, (c,)) if c > 1 else (f"_{i}" if name == "_" else name, base)
