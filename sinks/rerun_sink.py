@@ -146,7 +146,11 @@ def _content_hash(points: np.ndarray, class_ids: np.ndarray, instance_ids: np.nd
 
 
 class RerunSink(Sink):
-    """Streams a run to an .rrd file, a spawned viewer and/or a remote viewer (any combination)."""
+    """Streams a run to an .rrd file, a spawned viewer and/or a remote viewer (any combination).
+
+    The output path and URL are checked when the sink is made; the file is created and the viewer spawned
+    in `begin`.
+    """
 
     def __init__(
         self,
@@ -161,20 +165,17 @@ class RerunSink(Sink):
             raise ValueError("RerunSink needs at least one of save, spawn or connect")
         self.cfg = cfg
         self.path = check_output(save, force) if save is not None else None
-        sinks: list[rr.FileSink | rr.GrpcSink] = []
-        self.rec = rr.RecordingStream(application_id)
-        rr.set_log_time_enabled(False, recording=self.rec)  # wall-clock time of logging says nothing here
+        self.spawn = spawn
+        self._sinks: list[rr.FileSink | rr.GrpcSink] = []
         if self.path is not None:
-            sinks.append(rr.FileSink(self.path))
+            self._sinks.append(rr.FileSink(self.path))
         if connect is not None:
             try:
-                sinks.append(rr.GrpcSink(connect))
+                self._sinks.append(rr.GrpcSink(connect))
             except (ValueError, RuntimeError) as exc:
                 raise OutputError(f"not a Rerun gRPC URL ({exc})", connect) from None
-        if spawn:
-            rr.spawn(port=SPAWN_PORT, connect=False, recording=self.rec)
-            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
-        self.rec.set_sinks(*sinks, default_blueprint=L.default_blueprint())
+        self.rec = rr.RecordingStream(application_id)
+        rr.set_log_time_enabled(False, recording=self.rec)  # wall-clock time of logging says nothing here
         self._closed = False
         self._mcap_times = False
         self._scan: Scan | None = None  # the scan whose times are currently set
@@ -190,6 +191,11 @@ class RerunSink(Sink):
     # ------------------------------------------------------------------------------------------ hooks
 
     def begin(self, info: RunInfo) -> None:
+        # Outputs open only now: a run refused before its first scan leaves no empty recording behind.
+        if self.spawn:
+            rr.spawn(port=SPAWN_PORT, connect=False, recording=self.rec)
+            self._sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
+        self.rec.set_sinks(*self._sinks, default_blueprint=L.default_blueprint())
         self._mcap_times = info.source_kind == "mcap"
         self.rec.send_recording_name(Path(info.source).name or info.source)
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, annotation_context(), static=True)

@@ -182,8 +182,14 @@ def test_outputs_are_checked_before_any_work(tmp_path: Path) -> None:
     existing.write_bytes(b"x")
     with pytest.raises(OutputError, match="already exists"):
         RerunSink(existing, False, None, RerunConfig())
-    RerunSink(existing, False, None, RerunConfig(), force=True).close()
-    assert existing.stat().st_size > 1
+    sink = RerunSink(existing, False, None, RerunConfig(), force=True)
+    assert existing.read_bytes() == b"x"  # nothing is written before the run begins
+    sink.begin(RunInfo("x", "sim"))
+    sink.close()
+    assert read_rrd(existing).application_id == "aftershock"
+    fresh = tmp_path / "sub" / "new.rrd"
+    RerunSink(fresh, False, None, RerunConfig()).close()  # a run refused before it began
+    assert not fresh.exists()
     not_a_folder = tmp_path / "file.txt"
     not_a_folder.write_text("x")
     with pytest.raises(OutputError, match="cannot create the folder"):
