@@ -1,0 +1,902 @@
+"""Procedural multi-story reinforced-concrete buildings: one integer seed, the same building every time.
+
+Layout of a story: a column grid carrying beams and slab panels; outer walls with windows; a corridor
+along x with rooms on both sides (or an open-plan side), partition walls with doors; furniture and clutter
+in every room. The `disaster` family then adds damage (see `damage.py`): drifted and tilted levels,
+spalled and leaning columns, broken walls, collapsed slab panels, debris piles, cracks, tipped furniture.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Final
+
+import numpy as np
+
+from pipeline.classes import SemanticClass as C
+from sources.simulator import furniture as fur
+from sources.simulator.damage import (
+    CrackTruth,
+    debris_pile,
+    deform,
+    level_motions,
+    make_crack,
+    random_crack_size,
+)
+from sources.simulator.families import FamilySpec, family_spec
+from sources.simulator.meshes import CONCRETE, GLASS, METAL, PLASTER, TILE, WOOD, MeshBuilder, rotation_xyz, rotation_z
+from sources.simulator.scene import Room, Scene, SceneTruth, StoryTruth, plane_of
+
+OUTER_WALL_M: Final = 0.25
+PARTITION_M: Final = 0.12
+DOOR_W: Final = (0.9, 1.05)
+DOOR_H: Final = 2.1
+CRACK_COLOR: Final = (62, 58, 52)
+
+
+@dataclass(slots=True)
+class _Opening:
+    u0: float
+    u1: float
+    z0: float
+    z1: float
+    kind: str  # door | window | gap
+
+
+@dataclass(slots=True)
+class _Wall:
+    """A straight wall from (x0, y0) to (x1, y1) (axis aligned) with openings along it."""
+
+    story: int
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    thickness: float
+    outer: bool
+    openings: list[_Opening] = field(default_factory=list)
+    broken: bool = False
+
+    @property
+    def along_x(self) -> bool:
+        return abs(self.y1 - self.y0) < 1e-9
+
+    @property
+    def length(self) -> float:
+        return abs(self.x1 - self.x0) + abs(self.y1 - self.y0)
+
+    def point(self, u: float) -> tuple[float, float]:
+        return (self.x0 + u, self.y0) if self.along_x else (self.x0, self.y0 + u)
+
+
+@dataclass(slots=True)
+class _Plan:
+    spec: FamilySpec
+    xs: np.ndarray  # column lines along x
+    ys: np.ndarray
+    story_h: list[float]
+    slab_t: float
+    beam_d: float
+    column_w: float
+    corridor: tuple[float, float]  # y0, y1
+    floor_z: list[float]
+    ceiling_z: list[float]
+    walls: list[_Wall] = field(default_factory=list)
+    rooms: list[Room] = field(default_factory=list)
+    door_zones: dict[int, list[tuple[float, float, float, float]]] = field(default_factory=dict)
+
+    @property
+    def width(self) -> float:
+        return float(self.xs[-1])
+
+    @property
+    def depth(self) -> float:
+        return float(self.ys[-1])
+
+
+def build_scene(family: str, seed: int) -> Scene:
+    """The building of `family` drawn from `seed` (deterministic), with its labelled mesh and truth."""
+    spec = family_spec(family)
+    root = np.random.SeedSequence([int(seed), sum(map(ord, family))])
+    rngs = [np.random.default_rng(s) for s in root.spawn(6)]
+    r_plan, r_struct, r_furn, r_damage, r_crack, r_look = rngs
+    plan = _plan(spec, r_plan)
+    b = MeshBuilder(r_struct)
+    cracks_on: list[tuple[int, int, np.ndarray, np.ndarray, int, bool]] = []  # candidates for cracks
+    _structure(plan, b, r_struct, r_damage, cracks_on)
+    for room in plan.rooms:
+        _furnish(plan, room, b, r_furn, r_damage)
+    if spec.damage > 0:
+        _damage_stories(plan, b, r_damage)
+    mesh, v_level, v_span = b.build()
+    center = (plan.width / 2, plan.depth / 2)
+    levels_z = [*plan.floor_z, plan.ceiling_z[-1] + plan.slab_t]
+    motions = level_motions(r_damage, levels_z, center, plan.story_h, spec.drift_ratio, spec.tilt_deg)
+    mesh.vertices = deform(mesh.vertices, v_level, v_span, motions, plan.floor_z, plan.ceiling_z)
+    cracks = _cracks(plan, r_crack, cracks_on, motions) if spec.cracks[1] > 0 else []
+    stories = []
+    for k in range(len(plan.story_h)):
+        lo, hi = motions[k], motions[k + 1]
+        stories.append(
+            StoryTruth(
+                index=k,
+                floor_z_m=plan.floor_z[k],
+                ceiling_z_m=plan.ceiling_z[k],
+                drift_x_mm=lo.drift_x_mm,
+                drift_y_mm=lo.drift_y_mm,
+                tilt_x_deg=lo.tilt_x_deg,
+                tilt_y_deg=lo.tilt_y_deg,
+                inter_story_drift_x_mm=round(hi.drift_x_mm - lo.drift_x_mm, 3),
+                inter_story_drift_y_mm=round(hi.drift_y_mm - lo.drift_y_mm, 3),
+                floor_plane=plane_of(lo.matrix(), plan.floor_z[k]),
+                ceiling_plane=plane_of(hi.matrix(), plan.ceiling_z[k]),
+            )
+        )
+    truth = SceneTruth(
+        family=family,
+        seed=int(seed),
+        footprint_m=(plan.width, plan.depth),
+        stories=tuple(stories),
+        levels=tuple(motions),
+        cracks=tuple(cracks),
+        instance_classes=dict(b.instance_class),
+    )
+    waves = np.c_[
+        r_look.normal(0, 1, (4, 3)) * np.array([[9.0], [4.0], [1.5], [25.0]]), r_look.uniform(0, 2 * np.pi, 4)
+    ]
+    return Scene(
+        family=family,
+        seed=int(seed),
+        mesh=mesh,
+        truth=truth,
+        rooms=tuple(plan.rooms),
+        floor_z=tuple(plan.floor_z),
+        ceiling_z=tuple(plan.ceiling_z),
+        light=float(r_look.uniform(0.85, 1.1)),
+        _waves=waves,
+    )
+
+
+# ---------------------------------------------------------------------------------------------- plan
+
+
+def _bays(rng: np.random.Generator, lo_hi: tuple[int, int], bay: tuple[float, float]) -> np.ndarray:
+    n = int(rng.integers(lo_hi[0], lo_hi[1] + 1))
+    return np.r_[0.0, np.cumsum(np.round(rng.uniform(*bay, n), 2))]
+
+
+def _plan(spec: FamilySpec, rng: np.random.Generator) -> _Plan:
+    xs, ys = _bays(rng, spec.bays_x, spec.bay_m), _bays(rng, spec.bays_y, spec.bay_m)
+    n_st = int(rng.integers(spec.stories[0], spec.stories[1] + 1))
+    slab_t = round(float(rng.uniform(0.2, 0.28)), 3)
+    h = round(float(rng.uniform(*spec.story_height_m)), 2)
+    story_h = [h] * n_st
+    floor_z = [k * h for k in range(n_st)]
+    ceiling_z = [(k + 1) * h - slab_t for k in range(n_st)]
+    depth = ys[-1]
+    cw = float(rng.uniform(*spec.corridor_width_m))
+    yc = float(np.clip(depth * rng.uniform(0.4, 0.6), 3.2 + cw / 2, depth - 3.2 - cw / 2))
+    plan = _Plan(
+        spec=spec,
+        xs=xs,
+        ys=ys,
+        story_h=story_h,
+        slab_t=slab_t,
+        beam_d=round(float(rng.uniform(0.35, 0.55)), 2),
+        column_w=round(float(rng.uniform(0.4, 0.6)), 2),
+        corridor=(yc - cw / 2, yc + cw / 2),
+        floor_z=floor_z,
+        ceiling_z=ceiling_z,
+    )
+    for k in range(n_st):
+        _story_walls(plan, k, rng)
+    return plan
+
+
+def _story_walls(plan: _Plan, k: int, rng: np.random.Generator) -> None:
+    spec, w, d = plan.spec, plan.width, plan.depth
+    ch = plan.ceiling_z[k] - plan.floor_z[k]
+    zones = plan.door_zones.setdefault(k, [])
+    # Outer walls with a window per bay.
+    for x0, y0, x1, y1, lines in (
+        (0, 0, w, 0, plan.xs),
+        (0, d, w, d, plan.xs),
+        (0, 0, 0, d, plan.ys),
+        (w, 0, w, d, plan.ys),
+    ):
+        wall = _Wall(k, x0, y0, x1, y1, OUTER_WALL_M, True)
+        for a, c in itertools.pairwise(lines):
+            width = min(c - a - 1.2, rng.uniform(1.2, 2.6))
+            mid = (a + c) / 2 + rng.uniform(-0.2, 0.2)
+            sill = rng.uniform(0.8, 1.0)
+            wall.openings.append(_Opening(mid - width / 2, mid + width / 2, sill, min(2.4, ch - 0.3), "window"))
+        plan.walls.append(wall)
+    c0, c1 = plan.corridor
+    half = PARTITION_M / 2 + 0.01
+    plan.rooms.append(Room(k, OUTER_WALL_M / 2, c0 + half, w - OUTER_WALL_M / 2, c1 - half, "corridor"))
+    for side in ("south", "north"):
+        ya, yb = (OUTER_WALL_M / 2, c0) if side == "south" else (c1, d - OUTER_WALL_M / 2)
+        y_wall = c0 if side == "south" else c1
+        y_in = ya if side == "north" else yb  # the room side of the corridor wall
+        if rng.random() < spec.open_plan_prob:
+            plan.rooms.append(
+                Room(
+                    k,
+                    OUTER_WALL_M / 2,
+                    ya + (half if side == "north" else 0),
+                    w - OUTER_WALL_M / 2,
+                    yb - (half if side == "south" else 0),
+                    "open",
+                )
+            )
+            # a low wall stub at each end keeps the corridor readable; the middle is open
+            cw = _Wall(k, 0, y_wall, w, y_wall, PARTITION_M, False)
+            cw.openings.append(_Opening(1.5, w - 1.5, 0.0, ch, "gap"))
+            plan.walls.append(cw)
+            continue
+        bounds = [0.0]
+        while bounds[-1] + spec.room_width_m[0] * 2 < w:
+            bounds.append(bounds[-1] + float(rng.uniform(*spec.room_width_m)))
+        bounds.append(w)
+        if bounds[-1] - bounds[-2] < spec.room_width_m[0]:
+            bounds.pop(-2)
+        corridor_wall = _Wall(k, 0, y_wall, w, y_wall, PARTITION_M, False)
+        for i, (a, c) in enumerate(itertools.pairwise(bounds)):
+            x0 = a + (OUTER_WALL_M / 2 if i == 0 else half)
+            x1 = c - (OUTER_WALL_M / 2 if i == len(bounds) - 2 else half)
+            y0 = ya + (half if side == "north" else 0)
+            y1 = yb - (half if side == "south" else 0)
+            plan.rooms.append(Room(k, x0, y0, x1, y1, "room"))
+            dw = float(rng.uniform(*DOOR_W))
+            u = float(rng.uniform(x0 + 0.3, max(x0 + 0.31, x1 - dw - 0.3)))
+            corridor_wall.openings.append(_Opening(u, u + dw, 0.0, DOOR_H, "door"))
+            sgn = 1.0 if side == "north" else -1.0
+            zones.append((u - 0.2, min(y_in, y_in + sgn * 1.4), u + dw + 0.2, max(y_in, y_in + sgn * 1.4)))
+            zones.append((u - 0.2, min(y_in, y_in - sgn * 1.0), u + dw + 0.2, max(y_in, y_in - sgn * 1.0)))
+            if i > 0:
+                part = _Wall(k, a, ya, a, yb, PARTITION_M, False)
+                if rng.random() < 0.3 and yb - ya > 2.5:  # a door to the neighbouring room
+                    v = float(rng.uniform(0.4, yb - ya - 1.5))
+                    part.openings.append(_Opening(v, v + 0.95, 0.0, DOOR_H, "door"))
+                    zones.append((a - 1.2, ya + v - 0.2, a + 1.2, ya + v + 1.15))
+                part.broken = rng.random() < spec.broken_wall_prob
+                plan.walls.append(part)
+        plan.walls.append(corridor_wall)
+
+
+# ---------------------------------------------------------------------------------------------- structure
+
+
+def _structure(
+    plan: _Plan,
+    b: MeshBuilder,
+    rng: np.random.Generator,
+    r_damage: np.random.Generator,
+    cracks_on: list[tuple[int, int, np.ndarray, np.ndarray, int, bool]],
+) -> None:
+    spec, w, d, t = plan.spec, plan.width, plan.depth, plan.slab_t
+    n_st = len(plan.story_h)
+    struct_col = spec.structure_colors[int(rng.integers(len(spec.structure_colors)))]
+    collapsed: set[tuple[int, int, int]] = set()
+    if spec.collapsed_panels[1] > 0 and n_st > 1:
+        for _ in range(int(r_damage.integers(spec.collapsed_panels[0], spec.collapsed_panels[1] + 1))):
+            collapsed.add(
+                (
+                    int(r_damage.integers(1, n_st + 1)),
+                    int(r_damage.integers(len(plan.xs) - 1)),
+                    int(r_damage.integers(len(plan.ys) - 1)),
+                )
+            )
+    # Slabs: level j top at floor_z[j] (the roof above the last story); each bay panel is a floor half on a
+    # ceiling half, so the floor of story j and the ceiling of story j-1 are separate instances.
+    for j in range(n_st + 1):
+        top = plan.floor_z[j] if j < n_st else plan.ceiling_z[-1] + t
+        floor_inst = b.new_instance(C.FLOOR)
+        ceil_inst = b.new_instance(C.CEILING) if j > 0 else 0
+        floor_col = spec.floor_colors[int(rng.integers(len(spec.floor_colors)))]
+        ceil_col = spec.ceiling_colors[int(rng.integers(len(spec.ceiling_colors)))]
+        floor_mat = TILE if spec.plastered else CONCRETE
+        for ix in range(len(plan.xs) - 1):
+            for iy in range(len(plan.ys) - 1):
+                x0, x1, y0, y1 = plan.xs[ix], plan.xs[ix + 1], plan.ys[iy], plan.ys[iy + 1]
+                cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+                rot, shift = None, np.zeros(3)
+                f_inst, c_inst = floor_inst, ceil_inst
+                if (j, ix, iy) in collapsed:
+                    # hinged on one edge, the panel hangs down into the story below
+                    ang = np.deg2rad(r_damage.uniform(8, 22)) * r_damage.choice([-1, 1])
+                    rot = rotation_xyz(ang, 0.0, 0.0)
+                    hinge = np.array([cx, y0 if ang < 0 else y1, top])
+                    shift = (rot @ (np.array([cx, cy, top]) - hinge) + hinge) - np.array([cx, cy, top])
+                    f_inst, c_inst = b.new_instance(C.FLOOR), b.new_instance(C.CEILING)
+                    debris_pile(
+                        b,
+                        r_damage,
+                        (cx, y1 - 1.0 if ang < 0 else y0 + 1.0),
+                        plan.floor_z[j - 1],
+                        1.2,
+                        0.8,
+                        j - 1,
+                        spec.structure_colors,
+                    )
+                top_c = np.array([cx, cy, top - t / 4])
+                bot_c = np.array([cx, cy, top - 3 * t / 4])
+                if rot is not None:
+                    top_c = rot @ (top_c - np.array([cx, cy, top])) + np.array([cx, cy, top]) + shift
+                    bot_c = rot @ (bot_c - np.array([cx, cy, top])) + np.array([cx, cy, top]) + shift
+                b.add_box(
+                    top_c,
+                    (x1 - x0, y1 - y0, t / 2),
+                    cls=C.FLOOR,
+                    instance=f_inst,
+                    material=floor_mat,
+                    color=floor_col,
+                    story=j,
+                    rotation=rot,
+                )
+                if j > 0:
+                    b.add_box(
+                        bot_c,
+                        (x1 - x0, y1 - y0, t / 2),
+                        cls=C.CEILING,
+                        instance=c_inst,
+                        material=PLASTER if spec.plastered else CONCRETE,
+                        color=ceil_col,
+                        story=j,
+                        rotation=rot,
+                    )
+                    if rot is None:
+                        cracks_on.append(
+                            (
+                                c_inst,
+                                int(C.CEILING),
+                                np.array([cx, cy, top - t]),
+                                np.array([x1 - x0, y1 - y0, 0.0]),
+                                j,
+                                False,
+                            )
+                        )
+        # Beams under slab j along every column line.
+        if j > 0:
+            z = top - t - plan.beam_d / 2
+            for x in plan.xs:
+                inst = b.new_instance(C.BEAM)
+                b.add_box(
+                    (x, d / 2, z),
+                    (0.3, d, plan.beam_d),
+                    cls=C.BEAM,
+                    instance=inst,
+                    material=CONCRETE,
+                    color=struct_col,
+                    story=j,
+                )
+            for y in plan.ys:
+                inst = b.new_instance(C.BEAM)
+                b.add_box(
+                    (w / 2, y, z),
+                    (w, 0.3, plan.beam_d),
+                    cls=C.BEAM,
+                    instance=inst,
+                    material=CONCRETE,
+                    color=struct_col,
+                    story=j,
+                )
+    # Columns at every grid point of every story.
+    cw = plan.column_w
+    for k in range(n_st):
+        z0, z1 = plan.floor_z[k], plan.ceiling_z[k]
+        for x in plan.xs:
+            for y in plan.ys:
+                inst = b.new_instance(C.COLUMN)
+                if r_damage.random() < spec.damaged_column_prob:
+                    _damaged_column(b, r_damage, inst, x, y, z0, z1, cw, struct_col, k)
+                else:
+                    b.add_box(
+                        (x, y, (z0 + z1) / 2),
+                        (cw, cw, z1 - z0),
+                        cls=C.COLUMN,
+                        instance=inst,
+                        material=CONCRETE,
+                        color=struct_col,
+                        story=k,
+                        span=True,
+                    )
+                cracks_on.append(
+                    (inst, int(C.COLUMN), np.array([x, y, (z0 + z1) / 2]), np.array([cw, cw, z1 - z0]), k, True)
+                )
+    for wall in plan.walls:
+        _wall(plan, wall, b, rng, r_damage, cracks_on)
+
+
+def _damaged_column(
+    b: MeshBuilder,
+    rng: np.random.Generator,
+    inst: int,
+    x: float,
+    y: float,
+    z0: float,
+    z1: float,
+    cw: float,
+    col: tuple[int, int, int],
+    k: int,
+) -> None:
+    """A column spalled over part of its height: the core shifted and thinned there, rebar exposed."""
+    h = z1 - z0
+    a = z0 + h * rng.uniform(0.1, 0.6)
+    c = a + h * rng.uniform(0.12, 0.3)
+    core = cw * rng.uniform(0.55, 0.8)
+    off = rng.uniform(-0.06, 0.06, 2)
+    for lo, hi in ((z0, a), (c, z1)):
+        b.add_box(
+            (x, y, (lo + hi) / 2),
+            (cw, cw, hi - lo),
+            cls=C.COLUMN,
+            instance=inst,
+            material=CONCRETE,
+            color=col,
+            story=k,
+            span=True,
+        )
+    b.add_box(
+        (x + off[0], y + off[1], (a + c) / 2),
+        (core, core, c - a),
+        cls=C.COLUMN,
+        instance=inst,
+        material=CONCRETE,
+        color=col,
+        story=k,
+        span=True,
+        rotation=rotation_xyz(*rng.uniform(-0.08, 0.08, 2), 0),
+    )
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            bend = rng.uniform(-0.08, 0.08, 2)
+            b.add_box(
+                (x + sx * (cw / 2 - 0.05) + bend[0] / 2, y + sy * (cw / 2 - 0.05) + bend[1] / 2, (a + c) / 2),
+                (0.02, 0.02, c - a),
+                cls=C.COLUMN,
+                instance=inst,
+                material=METAL,
+                color=(95, 70, 55),
+                story=k,
+                span=True,
+                rotation=rotation_xyz(bend[1] * 2, -bend[0] * 2, 0),
+            )
+
+
+def _wall(
+    plan: _Plan,
+    wall: _Wall,
+    b: MeshBuilder,
+    rng: np.random.Generator,
+    r_damage: np.random.Generator,
+    cracks_on: list[tuple[int, int, np.ndarray, np.ndarray, int, bool]],
+) -> None:
+    spec = plan.spec
+    k = wall.story
+    z0, z1 = plan.floor_z[k], plan.ceiling_z[k]
+    h = z1 - z0
+    inst = b.new_instance(C.WALL)
+    color = spec.wall_colors[int(rng.integers(len(spec.wall_colors)))]
+    mat = PLASTER if spec.plastered else CONCRETE
+    ops = sorted(wall.openings, key=lambda o: o.u0)
+    pieces: list[tuple[float, float, float, float]] = []  # u0, u1, z0, z1 (relative)
+    u = 0.0
+    for o in ops:
+        if o.u0 > u:
+            pieces.append((u, o.u0, 0.0, h))
+        if o.z0 > 0:
+            pieces.append((o.u0, o.u1, 0.0, o.z0))
+        if o.z1 < h:
+            pieces.append((o.u0, o.u1, o.z1, h))
+        u = o.u1
+    if u < wall.length:
+        pieces.append((u, wall.length, 0.0, h))
+    if wall.broken:
+        _broken_wall(plan, wall, b, r_damage, inst, color, mat, pieces)
+    else:
+        for pu0, pu1, pz0, pz1 in pieces:
+            _wall_box(wall, b, inst, color, mat, pu0, pu1, z0 + pz0, z0 + pz1)
+    for pu0, pu1, pz0, pz1 in pieces:
+        if pu1 - pu0 > 1.0 and pz1 - pz0 > 1.5 and not wall.broken:
+            x, y = wall.point((pu0 + pu1) / 2)
+            size = (
+                np.array([pu1 - pu0, wall.thickness, pz1 - pz0])
+                if wall.along_x
+                else np.array([wall.thickness, pu1 - pu0, pz1 - pz0])
+            )
+            cracks_on.append((inst, int(C.WALL), np.array([x, y, z0 + (pz0 + pz1) / 2]), size, k, True))
+    for o in ops:
+        if o.kind == "door":
+            _door(plan, wall, o, b, rng)
+        elif o.kind == "window":
+            _window(plan, wall, o, b, rng)
+
+
+def _wall_box(
+    wall: _Wall, b: MeshBuilder, inst: int, color: tuple[int, int, int], mat, u0: float, u1: float, z0: float, z1: float
+) -> None:
+    if u1 - u0 < 1e-3 or z1 - z0 < 1e-3:
+        return
+    x, y = wall.point((u0 + u1) / 2)
+    size = (u1 - u0, wall.thickness, z1 - z0) if wall.along_x else (wall.thickness, u1 - u0, z1 - z0)
+    b.add_box(
+        (x, y, (z0 + z1) / 2),
+        size,
+        cls=C.WALL,
+        instance=inst,
+        material=mat,
+        color=color,
+        story=wall.story,
+        span=True,
+        jitter_color=0.0,
+    )
+
+
+def _broken_wall(
+    plan: _Plan,
+    wall: _Wall,
+    b: MeshBuilder,
+    rng: np.random.Generator,
+    inst: int,
+    color: tuple[int, int, int],
+    mat,
+    pieces: list[tuple[float, float, float, float]],
+) -> None:
+    """A partition that partly collapsed: a jagged stump along part of its length, its rubble beside it."""
+    z0 = plan.floor_z[wall.story]
+    h = plan.ceiling_z[wall.story] - z0
+    a = rng.uniform(0.0, 0.5) * wall.length
+    c = min(wall.length, a + rng.uniform(1.5, 3.5))
+    for pu0, pu1, pz0, pz1 in pieces:
+        for lo, hi in ((pu0, min(pu1, a)), (max(pu0, c), pu1)):
+            if hi - lo > 1e-3:
+                _wall_box(wall, b, inst, color, mat, lo, hi, z0 + pz0, z0 + pz1)
+        lo, hi = max(pu0, a), min(pu1, c)
+        u = lo
+        while u < hi - 1e-3:  # jagged top
+            step = min(hi - u, rng.uniform(0.15, 0.5))
+            top = min(pz1, max(pz0, h * rng.uniform(0.1, 0.6)))
+            _wall_box(wall, b, inst, color, mat, u, u + step, z0 + pz0, z0 + top)
+            u += step
+    x, y = wall.point((a + c) / 2)
+    side = rng.choice([-1, 1]) * 0.7
+    pos = (x, y + side) if wall.along_x else (x + side, y)
+    debris_pile(b, rng, pos, z0, 0.5 * (c - a) * 0.6 + 0.3, 0.5, wall.story, plan.spec.structure_colors)
+
+
+def _door(plan: _Plan, wall: _Wall, o: _Opening, b: MeshBuilder, rng: np.random.Generator) -> None:
+    k, z0 = wall.story, plan.floor_z[wall.story]
+    inst = b.new_instance(C.DOOR)
+    col = fur.WOOD_TONES[int(rng.integers(len(fur.WOOD_TONES)))]
+    frame = 0.05
+    t = wall.thickness + 0.02
+    for uu, size_u, zc, hz in (
+        (o.u0 + frame / 2, frame, o.z1 / 2, o.z1),
+        (o.u1 - frame / 2, frame, o.z1 / 2, o.z1),
+        ((o.u0 + o.u1) / 2, o.u1 - o.u0, o.z1 - frame / 2, frame),
+    ):
+        x, y = wall.point(uu)
+        size = (size_u, t, hz) if wall.along_x else (t, size_u, hz)
+        b.add_box((x, y, z0 + zc), size, cls=C.DOOR, instance=inst, material=WOOD, color=(200, 200, 196), story=k)
+    leaf_w = o.u1 - o.u0 - 2 * frame
+    closed = rng.random() < plan.spec.door_closed_prob
+    ang = 0.0 if closed else np.deg2rad(rng.uniform(75, 100)) * rng.choice([-1, 1])
+    hinge_u = o.u0 + frame
+    hx, hy = wall.point(hinge_u)
+    base = 0.0 if wall.along_x else np.pi / 2
+    rot = rotation_z(base + ang)
+    center = np.array([hx, hy, z0 + (o.z1 - frame) / 2]) + rot @ np.array([leaf_w / 2, 0, 0])
+    b.add_box(
+        center,
+        (leaf_w, 0.04, o.z1 - frame - 0.01),
+        cls=C.DOOR,
+        instance=inst,
+        material=WOOD,
+        color=col,
+        story=k,
+        rotation=rot,
+    )
+
+
+def _window(plan: _Plan, wall: _Wall, o: _Opening, b: MeshBuilder, rng: np.random.Generator) -> None:
+    k, z0 = wall.story, plan.floor_z[wall.story]
+    inst = b.new_instance(C.WINDOW)
+    frame_col = (230, 230, 230) if rng.random() < 0.6 else (70, 70, 75)
+    fw = 0.06
+    t = 0.08
+    for uu, su, zc, sz in (
+        (o.u0 + fw / 2, fw, (o.z0 + o.z1) / 2, o.z1 - o.z0),
+        (o.u1 - fw / 2, fw, (o.z0 + o.z1) / 2, o.z1 - o.z0),
+        ((o.u0 + o.u1) / 2, o.u1 - o.u0, o.z0 + fw / 2, fw),
+        ((o.u0 + o.u1) / 2, o.u1 - o.u0, o.z1 - fw / 2, fw),
+        ((o.u0 + o.u1) / 2, fw, (o.z0 + o.z1) / 2, o.z1 - o.z0),
+    ):
+        x, y = wall.point(uu)
+        size = (su, t, sz) if wall.along_x else (t, su, sz)
+        b.add_box((x, y, z0 + zc), size, cls=C.WINDOW, instance=inst, material=METAL, color=frame_col, story=k)
+    x, y = wall.point((o.u0 + o.u1) / 2)
+    size = (o.u1 - o.u0, 0.01, o.z1 - o.z0) if wall.along_x else (0.01, o.u1 - o.u0, o.z1 - o.z0)
+    if plan.spec.damage > 0 and rng.random() < 0.6:
+        return  # blown-out glass
+    b.add_box((x, y, z0 + (o.z0 + o.z1) / 2), size, cls=C.WINDOW, instance=inst, material=GLASS, story=k)
+
+
+# ---------------------------------------------------------------------------------------------- contents
+
+
+class _Free:
+    """Axis-aligned footprints already taken in a room."""
+
+    def __init__(self, room: Room, taken: list[tuple[float, float, float, float]]) -> None:
+        self.room = room
+        self.rects = list(taken)
+
+    def fits(self, x0: float, y0: float, x1: float, y1: float, margin: float = 0.05) -> bool:
+        r = self.room
+        if x0 < r.x0 + margin or y0 < r.y0 + margin or x1 > r.x1 - margin or y1 > r.y1 - margin:
+            return False
+        return all(x1 <= a or x0 >= c or y1 <= bb or y0 >= d for a, bb, c, d in self.rects)
+
+    def take(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        self.rects.append((x0, y0, x1, y1))
+
+
+def _footprint(piece: fur.Piece, x: float, y: float, yaw: float, pad: float = 0.0) -> tuple[float, ...]:
+    hx, hy = piece.half_extent
+    c, s = abs(np.cos(yaw)), abs(np.sin(yaw))
+    ex, ey = hx * c + hy * s + pad, hx * s + hy * c + pad
+    return (x - ex, y - ey, x + ex, y + ey)
+
+
+def _furnish(plan: _Plan, room: Room, b: MeshBuilder, rng: np.random.Generator, r_damage: np.random.Generator) -> None:
+    spec = plan.spec
+    k = room.story
+    z0 = plan.floor_z[k]
+    cw = plan.column_w / 2 + 0.05
+    taken = [(x - cw, y - cw, x + cw, y + cw) for x in plan.xs for y in plan.ys]
+    taken += plan.door_zones.get(k, [])
+    free = _Free(room, taken)
+    shade = float(rng.uniform(0.8, 1.15))
+    area = (room.x1 - room.x0) * (room.y1 - room.y0)
+    messy = spec.tip_prob
+
+    def put(
+        piece: fur.Piece, x: float, y: float, yaw: float, z: float = 0.0, check: bool = True, pad: float = 0.05
+    ) -> bool:
+        fp = _footprint(piece, x, y, yaw, pad)
+        if check and not free.fits(*fp):
+            return False
+        rot = rotation_z(yaw)
+        zz = z0 + z
+        if messy and r_damage.random() < messy and z == 0.0:
+            # thrown about: shifted, turned, some tipped over onto a side
+            yaw2 = yaw + r_damage.normal(0, 0.5)
+            if piece.cls in (C.CHAIR, C.TABLE, C.BOOKCASE, C.CLUTTER) and r_damage.random() < 0.5:
+                hy = piece.half_extent[1]
+                tip = rotation_z(yaw2) @ rotation_xyz(np.pi / 2 * r_damage.choice([-1, 1]), 0, 0)
+                rot, zz = tip, z0 + hy
+            else:
+                rot = rotation_z(yaw2)
+        fur.place(b, piece, fur.pose(x, y, zz, rot), story=k, shade=shade)
+        free.take(*fp)
+        return True
+
+    def along_wall(piece: fur.Piece, tries: int = 20) -> bool:
+        for _ in range(tries):
+            side = int(rng.integers(4))
+            hx, hy = piece.half_extent
+            if (room.x1 - room.x0 if side < 2 else room.y1 - room.y0) < 2 * hx + 0.02:
+                continue
+            if side == 0:
+                x, y, yaw = rng.uniform(room.x0 + hx, room.x1 - hx), room.y0 + hy + 0.06, 0.0
+            elif side == 1:
+                x, y, yaw = rng.uniform(room.x0 + hx, room.x1 - hx), room.y1 - hy - 0.06, np.pi
+            elif side == 2:
+                x, y, yaw = room.x0 + hy + 0.06, rng.uniform(room.y0 + hx, room.y1 - hx), -np.pi / 2
+            else:
+                x, y, yaw = room.x1 - hy - 0.06, rng.uniform(room.y0 + hx, room.y1 - hx), np.pi / 2
+            if put(piece, x, y, yaw, pad=0.0):
+                return True
+        return False
+
+    f = spec.furniture
+    tables: list[tuple[float, float, float, fur.Piece]] = []
+    if room.kind == "corridor":
+        for _ in range(rng.poisson(0.1 * area * spec.clutter / 4)):
+            along_wall(fur.clutter(rng))
+        if rng.random() < 0.3 * f:
+            along_wall(fur.bookcase(rng))
+        if rng.random() < 0.2 * f:
+            along_wall(fur.sofa(rng))
+        return
+    for _ in range(rng.poisson(area / 14 * f)):
+        along_wall(fur.bookcase(rng))
+    if rng.random() < 0.6:
+        _board(plan, room, b, rng, shade)
+    if rng.random() < 0.35 * f:
+        along_wall(fur.sofa(rng))
+    n_tables = rng.poisson(area / (7 if room.kind == "open" else 9) * f)
+    for _ in range(n_tables):
+        piece = fur.table(rng)
+        for _try in range(15):
+            yaw = float(rng.choice([0.0, np.pi / 2]) + rng.normal(0, 0.05))
+            x = rng.uniform(room.x0 + 0.9, room.x1 - 0.9)
+            y = rng.uniform(room.y0 + 0.9, room.y1 - 0.9)
+            if put(piece, x, y, yaw, pad=0.55):  # room for the chairs and to walk around
+                tables.append((x, y, yaw, piece))
+                break
+    for x, y, yaw, piece in tables:
+        hx, hy = piece.half_extent
+        rot = rotation_z(yaw)
+        for side in (-1, 1):
+            for _ in range(int(rng.integers(0, 3))):
+                local = np.array([rng.uniform(-hx + 0.3, hx - 0.3), side * (hy + rng.uniform(0.2, 0.35)), 0])
+                cx, cy = (*(rot @ local)[:2], x, y)
+                chair_yaw = yaw + (0 if side < 0 else np.pi) + rng.normal(0, 0.3)
+                put(fur.chair(rng), float(cx), float(cy), float(chair_yaw), check=False)
+        for _ in range(rng.poisson(1.2 * spec.clutter)):  # things on the table
+            item = fur.clutter(rng)
+            if item.height > 0.8 or item.half_extent[0] > hx or item.half_extent[1] > hy:
+                continue
+            local = np.array(
+                [
+                    rng.uniform(-hx + item.half_extent[0], hx - item.half_extent[0]),
+                    rng.uniform(-hy + item.half_extent[1], hy - item.half_extent[1]),
+                    0,
+                ]
+            )
+            cx, cy = (*(rot @ local)[:2], x, y)
+            zt = max(p.center[2] + p.size[2] / 2 for p in piece.parts)
+            fur.place(
+                b,
+                item,
+                fur.pose(float(cx), float(cy), z0 + zt, rotation_z(yaw + rng.normal(0, 0.4))),
+                story=k,
+                shade=shade,
+            )
+    for _ in range(rng.poisson(area / 10 * spec.clutter)):
+        along_wall(fur.clutter(rng), tries=6)
+
+
+def _board(plan: _Plan, room: Room, b: MeshBuilder, rng: np.random.Generator, shade: float) -> None:
+    """A board on an inside wall, clear of the doors."""
+    piece = fur.board(rng)
+    hx = piece.half_extent[0]
+    zones = plan.door_zones.get(room.story, [])
+    for _ in range(10):
+        side = int(rng.integers(4))
+        horizontal = side < 2
+        lo, hi = (room.x0, room.x1) if horizontal else (room.y0, room.y1)
+        if hi - lo < 2 * hx + 0.4:
+            continue
+        u = rng.uniform(lo + hx + 0.2, hi - hx - 0.2)
+        if side == 0:
+            x, y, yaw = u, room.y0, 0.0
+        elif side == 1:
+            x, y, yaw = u, room.y1, np.pi
+        elif side == 2:
+            x, y, yaw = room.x0, u, -np.pi / 2
+        else:
+            x, y, yaw = room.x1, u, np.pi / 2
+        edge = (x, y)
+        if _near_outer(plan, edge) or any(a - hx <= x <= c + hx and bb - hx <= y <= d + hx for a, bb, c, d in zones):
+            continue
+        fur.place(b, piece, fur.pose(x, y, plan.floor_z[room.story], rotation_z(yaw)), story=room.story, shade=shade)
+        return
+
+
+def _near_outer(plan: _Plan, xy: tuple[float, float]) -> bool:
+    x, y = xy
+    m = OUTER_WALL_M
+    return x < m or y < m or x > plan.width - m or y > plan.depth - m
+
+
+def _damage_stories(plan: _Plan, b: MeshBuilder, rng: np.random.Generator) -> None:
+    """Debris piles on every story: in rooms, and against a corridor wall (narrowing but not closing it)."""
+    spec = plan.spec
+    for k in range(len(plan.story_h)):
+        rooms = [r for r in plan.rooms if r.story == k]
+        n = int(rng.integers(spec.debris_piles_per_story[0], spec.debris_piles_per_story[1] + 1))
+        for _ in range(n):
+            room = rooms[int(rng.integers(len(rooms)))]
+            if room.kind == "corridor":
+                width = room.y1 - room.y0
+                r = width * rng.uniform(0.2, 0.35)
+                y = room.y0 + r * 0.5 if rng.random() < 0.5 else room.y1 - r * 0.5
+                x = rng.uniform(room.x0 + 1.0, room.x1 - 1.0)
+                debris_pile(b, rng, (x, y), plan.floor_z[k], r, rng.uniform(0.2, 0.6), k, spec.structure_colors)
+            else:
+                r = rng.uniform(0.5, 1.5)
+                x = rng.uniform(room.x0 + r * 0.5, max(room.x0 + r * 0.5 + 0.01, room.x1 - r * 0.5))
+                y = rng.uniform(room.y0 + r * 0.5, max(room.y0 + r * 0.5 + 0.01, room.y1 - r * 0.5))
+                debris_pile(b, rng, (x, y), plan.floor_z[k], r, rng.uniform(0.3, 1.0), k, spec.structure_colors)
+
+
+# ---------------------------------------------------------------------------------------------- cracks
+
+
+def _cracks(
+    plan: _Plan,
+    rng: np.random.Generator,
+    candidates: list[tuple[int, int, np.ndarray, np.ndarray, int, bool]],
+    motions: list,
+) -> list[CrackTruth]:
+    """Cracks on columns (mostly), walls and ceilings, laid out undamaged then moved with their element."""
+    spec = plan.spec
+    n = int(rng.integers(spec.cracks[0], spec.cracks[1] + 1))
+    weights = np.array([3.0 if c[1] == C.COLUMN else 1.5 if c[1] == C.WALL else 1.0 for c in candidates])
+    picks = rng.choice(len(candidates), size=min(n, len(candidates)), replace=False, p=weights / weights.sum())
+    out = []
+    for i in sorted(picks):
+        inst, cls, center, size, level, span = candidates[int(i)]
+        length, width, depth = random_crack_size(rng)
+        if cls == C.CEILING:
+            normal = np.array([0.0, 0.0, -1.0])
+            u, v = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+            length = min(length * 2, 0.8 * min(size[0], size[1]))
+            face_c = center + np.r_[rng.uniform(-0.3, 0.3, 2) * size[:2], 0.0]
+            angle = rng.uniform(0, np.pi)
+        else:
+            # a vertical face: pick one of the sides of the column / wall
+            faces = [(0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0)]
+            if cls == C.WALL:
+                faces = [(int(np.argmin(size[:2])), 1.0), (int(np.argmin(size[:2])), -1.0)]
+            axis, sgn = faces[int(rng.integers(len(faces)))]
+            normal = np.zeros(3)
+            normal[axis] = sgn
+            u = np.zeros(3)
+            u[1 - axis] = 1.0
+            v = np.array([0.0, 0.0, 1.0])
+            half_u = size[1 - axis] / 2
+            length = min(length, 0.9 * size[2], 2.5 * half_u * 2 if cls == C.COLUMN else 3.0)
+            kind = rng.random()
+            angle = (
+                rng.uniform(0.5, 1.1) * rng.choice([-1, 1])
+                if kind < 0.5
+                # diagonal shear crack
+                else rng.normal(0, 0.12)
+                if kind < 0.8
+                else np.pi / 2 + rng.normal(0, 0.1)
+            )  # flexural / vertical
+            reach_u = max(half_u - abs(np.cos(angle)) * length / 2, 0.0)
+            reach_v = max(size[2] / 2 - abs(np.sin(angle)) * length / 2 - 0.05, 0.0)
+            face_c = (
+                center
+                + normal * (size[axis] / 2)
+                + u * rng.uniform(-reach_u, reach_u) * 0.9
+                + v * rng.uniform(-reach_v, reach_v)
+            )
+            if cls == C.COLUMN:
+                # keep the crack on its face: it may not be longer than the face is wide unless near-vertical
+                length = min(length, (2 * half_u) / max(abs(np.cos(angle)), 1e-3) * 0.95)
+        crack = make_crack(rng, inst, cls, face_c, normal, u, v, length, angle, width, depth, CRACK_COLOR)
+        out.append(_move_crack(crack, level, span, motions, plan))
+    return out
+
+
+def _move_crack(crack: CrackTruth, level: int, span: bool, motions: list, plan: _Plan) -> CrackTruth:
+    n = len(crack.polyline)
+    lv = np.full(n + 1, level)
+    sp = np.full(n + 1, span)
+    pts = np.r_[crack.polyline, [crack.polyline.mean(0) + crack.normal]]
+    moved = deform(pts, lv, sp, motions, plan.floor_z, plan.ceiling_z)
+    poly = moved[:-1]
+    nrm = moved[-1] - poly.mean(0)
+    direction = poly[-1] - poly[0]
+    seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
+    return CrackTruth(
+        element_instance_id=crack.element_instance_id,
+        element_class=crack.element_class,
+        center=poly.mean(0),
+        direction=direction / np.linalg.norm(direction),
+        normal=nrm / np.linalg.norm(nrm),
+        length_m=float(seg.sum()),
+        width_m=crack.width_m,
+        max_width_m=crack.max_width_m,
+        depth_m=crack.depth_m,
+        color=crack.color,
+        polyline=poly,
+        widths=crack.widths,
+    )

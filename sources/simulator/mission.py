@@ -1,0 +1,117 @@
+"""A simulated mission: a robot walks a tour through a building and its LiDAR sweeps while it moves.
+
+Every ray of a sweep leaves the sensor at its own time, from the pose the sensor has at that time, so a
+scan is distorted by the motion exactly as a real one is (deskewing matters). Points are reported in the
+sensor frame at the moment each was measured; the scan's `gt_pose` is the true pose at the sweep start.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from pipeline.types import Scan
+from sources.simulator.profiles import SensorProfile
+from sources.simulator.scene import Scene
+from sources.simulator.trajectory import WALK_SPEED_MPS, Trajectory, plan_tour
+
+START_NS: Final = 1_700_000_000_000_000_000  # a fixed epoch, so the same seed gives the same stamps
+DEFAULT_SCANS: Final = 100
+LIDAR_FRAME: Final = "lidar"
+POINTS_TOPIC: Final = "/lidar/points"
+
+
+@dataclass(frozen=True, slots=True)
+class MissionPlan:
+    """When each sweep starts and how many there are."""
+
+    period_s: float
+    scans: int
+
+    @staticmethod
+    def make(profile: SensorProfile, speed: float, scans: int | None, duration_s: float | None) -> MissionPlan:
+        period = profile.spacing_m / speed if profile.spacing_m else 1.0 / profile.rate_hz
+        period = max(period, profile.sweep_s)  # a new sweep cannot start before the last one ended
+        if scans is None:
+            scans = DEFAULT_SCANS if duration_s is None else int(np.floor(duration_s / period + 1e-9))
+        if scans < 0:
+            raise ValueError("the number of scans cannot be negative")
+        return MissionPlan(period, int(scans))
+
+
+class Mission:
+    """Scans of `profile` along a tour of one story of `scene`; iterate to get them."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        profile: SensorProfile,
+        *,
+        seed: int = 0,
+        scans: int | None = None,
+        duration_s: float | None = None,
+        story: int = 0,
+        speed: float = WALK_SPEED_MPS,
+        start_ns: int = START_NS,
+    ) -> None:
+        if not 0 <= story < scene.num_stories:
+            raise ValueError(f"story {story} is not in this building (0..{scene.num_stories - 1})")
+        self.scene, self.profile, self.seed, self.story = scene, profile, int(seed), story
+        self.plan = MissionPlan.make(profile, speed, scans, duration_s)
+        self.start_ns = int(start_ns)
+        self.trajectory: Trajectory = plan_tour(scene, story, self.seed, speed)
+        self._dirs = profile.directions()  # (C, B, 3)
+        self._times = profile.times()  # (C, B)
+        self._ring = np.broadcast_to(profile.rings()[None, :], self._times.shape)
+
+    def __len__(self) -> int:
+        return self.plan.scans
+
+    def sweep_start_s(self, k: int) -> float:
+        return k * self.plan.period_s
+
+    def __iter__(self) -> Iterator[Scan]:
+        for k in range(self.plan.scans):
+            yield self.scan(k)
+
+    def scan(self, k: int) -> Scan:
+        """Sweep number k (deterministic: its random stream depends only on scene, seed and k)."""
+        prof = self.profile
+        rng = np.random.default_rng([self.scene.seed, self.seed, k, 3])
+        t0 = self.sweep_start_s(k)
+        col_t = self._times[:, 0]
+        poses = self.trajectory.poses(t0 + col_t)  # (C, 4, 4) pose of each column
+        world_dirs = np.matmul(self._dirs, poses[:, :3, :3].transpose(0, 2, 1)).reshape(-1, 3)
+        origins = np.repeat(poses[:, :3, 3], prof.beams, axis=0)
+        t, tri, cos = self.scene.raycaster.cast(origins, world_dirs)
+        ok = (t >= prof.min_range_m) & (t <= prof.max_range_m)
+        if prof.dropout > 0:
+            ok &= rng.random(len(t)) >= prof.dropout
+        idx = np.flatnonzero(ok)
+        rng_m = t[idx]
+        if prof.range_noise_m > 0:
+            rng_m = rng_m + rng.normal(0, prof.range_noise_m, len(idx))
+        points = self._dirs.reshape(-1, 3)[idx] * rng_m[:, None]
+        surface = origins[idx] + world_dirs[idx] * t[idx, None]
+        tri_hit = tri[idx]
+        colors, intensity, _ = self.scene.look(tri_hit, surface, cos[idx], rng)
+        times_ns = np.round(self._times.reshape(-1)[idx] * 1e9)
+        stamp_ns = self.start_ns + round(t0 * 1e9)
+        return Scan(
+            stamp_ns=stamp_ns,
+            points=points,
+            seq=k,
+            frame_id=LIDAR_FRAME,
+            intensity=intensity,
+            colors=colors,
+            times=times_ns * 1e-9,
+            ring=self._ring.reshape(-1)[idx].copy(),
+            class_ids=self.scene.mesh.class_ids[tri_hit].copy(),
+            instance_ids=self.scene.mesh.instance_ids[tri_hit].copy(),
+            gt_pose=self.trajectory.poses(np.array([t0]))[0],
+            log_time_ns=stamp_ns + round(prof.sweep_s * 1e9),
+            topic=POINTS_TOPIC,
+        )
