@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from time import perf_counter
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from pipeline.classes import CLASS_NAMES, NUM_CLASSES
 from pipeline.cluster import InstanceClusterer, cluster_stage
@@ -139,6 +140,18 @@ def run_stream(
     notice: Callable[[str], None] | None = None,
 ) -> StreamResult:
     """Run the whole stream over `scans`; see the module docstring."""
+    # The stages do many small (N x 3) products: BLAS threads only add wake-up costs (KISS-ICP has its own).
+    with threadpool_limits(1, user_api="blas"):
+        return _run(scans, cfg, sinks, info, notice)
+
+
+def _run(
+    scans: Iterable[Scan],
+    cfg: Config,
+    sinks: Sequence[Sink],
+    info: RunInfo,
+    notice: Callable[[str], None] | None,
+) -> StreamResult:
     notice = notice or (lambda text: print(f"aftershock: {text}", file=sys.stderr))
     t_start = perf_counter()
     it = iter(scans)

@@ -23,6 +23,7 @@ import numpy as np
 from pipeline.classes import SemanticClass
 from pipeline.config import Config
 from pipeline.geometry import group_pca
+from pipeline.register import norms
 from pipeline.types import Frame
 from pipeline.voxel_map import VoxelMap
 
@@ -36,7 +37,7 @@ MAX_CURVATURE: Final = 0.08
 def rule_classes(normals: np.ndarray, curvature: np.ndarray, heights: np.ndarray) -> np.ndarray:
     """Class per voxel from its normal, curvature and height above the sensor (the rules in the docstring)."""
     nz = np.abs(normals[:, 2])
-    flat = (curvature <= MAX_CURVATURE) & (np.linalg.norm(normals, axis=1) > 0.5)
+    flat = (curvature <= MAX_CURVATURE) & (norms(normals) > 0.5)
     out = np.full(len(nz), SemanticClass.CLUTTER, np.uint16)
     horizontal = flat & (nz >= HORIZONTAL_COS)
     out[horizontal & (heights < 0)] = SemanticClass.FLOOR
@@ -58,7 +59,7 @@ class RegionGrowingLabeller:
         nb = vmap.neighbour_rows(new_rows, NORMAL_RADIUS_VOXELS)
         pos = vmap.positions[np.maximum(nb, 0)]
         centre = vmap.positions[new_rows]
-        valid = (nb >= 0) & (np.linalg.norm(pos - centre[:, None, :], axis=2) <= self.radius_m)
+        valid = (nb >= 0) & (norms(pos - centre[:, None, :]) <= self.radius_m)
         normals, curvature = group_pca(pos, valid)
         sensor_z = frame.pose[2, 3] if frame.pose is not None else 0.0
         vmap.normals[new_rows] = normals
@@ -70,7 +71,7 @@ class RegionGrowingLabeller:
         ok = np.abs(np.einsum("ij,ij->i", na, nb)) >= self.min_cos
         ca = vmap.colors[rows_a].astype(np.float32) / 255.0
         cb = vmap.colors[rows_b].astype(np.float32) / 255.0
-        return ok & (np.linalg.norm(ca - cb, axis=1) < self.max_color)
+        return ok & (norms(ca - cb) < self.max_color)
 
 
 def create(cfg: Config) -> RegionGrowingLabeller:
