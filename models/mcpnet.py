@@ -175,10 +175,11 @@ def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, Ne
 
 
 def point_features(positions: np.ndarray, colors: np.ndarray | None, origin: np.ndarray, floor_z: float) -> np.ndarray:
-    """(N, 7) float32: x, y relative to the robot, z relative to the floor, colour in [-0.5, 0.5], colour flag."""
+    """(N, 7) float32: x, y relative to the robot (`origin` (3,) or (N, 3)), z relative to the floor,
+    colour in [-0.5, 0.5], colour flag."""
     n = len(positions)
     out = np.zeros((n, POINT_DIM), np.float32)
-    out[:, 0:2] = positions[:, 0:2] - origin[0:2]
+    out[:, 0:2] = positions[:, 0:2] - origin[..., 0:2]
     out[:, 2] = positions[:, 2] - floor_z
     if colors is not None:
         out[:, 3:6] = colors.astype(np.float32) / 255.0 - 0.5

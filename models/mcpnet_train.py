@@ -1,0 +1,424 @@
+"""`aftershock train mcpnet`: MCPNet and its baselines from simulated missions, seeded, on a CPU.
+
+Missions of both scene families are staged the way inference sees them: each scan is placed in the world
+(with the simulator's true pose: registration noise is left out of training), cut to the labelling range,
+inserted in a voxel map, and every voxel it opens becomes a training point whose context is drawn from the
+map built so far. The same staged missions train the network without context and the PointNet baseline
+(single scans, the scans of the last 0.1 s, the scans within 0.5 m). Held-out seeds are never trained on.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import torch
+from torch import nn
+
+from models.mcpnet import (
+    CONTEXT_DIM,
+    POINT_DIM,
+    WEIGHTS_DIR,
+    MCPNet,
+    NetConfig,
+    num_parameters,
+    point_features,
+    save_weights,
+)
+from models.pointnet import PointNet
+from pipeline.classes import UNLABELLED
+from pipeline.errors import OutputError
+from pipeline.voxel_map import VoxelMap
+from sources.simulator import Mission as SimMission
+from sources.simulator import build_scene, get_profile
+
+FAMILIES: Final[tuple[str, ...]] = ("office", "disaster")
+SENSOR: Final = "vlp16"
+# The split, defined once: training seeds and held-out evaluation seeds never overlap.
+TRAIN_SEEDS: Final[tuple[int, ...]] = tuple(range(100, 106))
+HELDOUT_SEEDS: Final[tuple[int, ...]] = (900, 901)
+TRAIN_SCANS: Final = 150  # scans per training mission
+HELDOUT_SCANS: Final = 150
+
+EPOCHS: Final = 8
+BATCH_INSTANCES: Final = 16
+POINTS_PER_INSTANCE: Final = 16
+MARGIN: Final = 1.0
+LEARNING_RATE: Final = 1e-3
+COLOR_DROP: Final = 0.3  # share of training points shown without colour (the colour-free mode)
+POINTNET_MAX_POINTS: Final = 1024
+POINTNET_CLOUDS_PER_STEP: Final = 8
+TEMPORAL_WINDOW_S: Final = 0.1
+SPATIAL_WINDOW_M: Final = 0.5
+
+
+def mission_uri(family: str, seed: int, scans: int) -> str:
+    return f"sim://{family}?seed={seed}&sensor={SENSOR}&scans={scans}"
+
+
+def floor_height(world_points: np.ndarray) -> float:
+    """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns)."""
+    if not len(world_points):
+        return 0.0
+    return float(np.percentile(world_points[:, 2], 1.0))
+
+
+@dataclass(slots=True)
+class Mission:
+    """One staged mission: the map's stored points with their truth, and the points to predict."""
+
+    positions: np.ndarray  # (R, 3) float64
+    colors: np.ndarray  # (R, 3) uint8
+    classes: np.ndarray  # (R,) int64 true class (UNLABELLED where unknown)
+    instances: np.ndarray  # (R,) int64 true instance (0 = none)
+    rows: np.ndarray  # (S,) int64 map row of every training point (a new voxel)
+    context: np.ndarray  # (S, M) int64 context rows, -1 where none
+    sample_scan: np.ndarray  # (S,) int64 scan index of every training point
+    origins: np.ndarray  # (T, 3) sensor position per scan
+    floors: np.ndarray  # (T,) floor height per scan
+    stamps: np.ndarray  # (T,) scan time, seconds
+    scan_rows: list[np.ndarray]  # rows hit by each scan (inside the range)
+    new_rows: list[np.ndarray]  # rows each scan opened
+
+
+def stage_mission(mission: SimMission, cfg: NetConfig, rng: np.random.Generator) -> Mission:
+    """Replay a simulated mission with its true motion through a voxel map; see the module docstring.
+
+    Every point is placed with the true pose at its own firing time (an exact deskew), where inference
+    has KISS-ICP's estimate instead."""
+    vmap = VoxelMap(cfg.voxel_m)
+    rows, contexts, sample_scan, origins, floors, stamps, scan_rows, new_rows = [], [], [], [], [], [], [], []
+    for t, scan in enumerate(mission):
+        assert scan.class_ids is not None and scan.instance_ids is not None and scan.times is not None
+        poses = mission.trajectory.poses(mission.sweep_start_s(t) + scan.times)  # (N, 4, 4)
+        world = np.einsum("nij,nj->ni", poses[:, :3, :3], scan.points) + poses[:, :3, 3]
+        end = mission.trajectory.poses(np.array([mission.sweep_start_s(t) + mission.profile.sweep_s]))[0]
+        keep = np.hypot(scan.points[:, 0], scan.points[:, 1]) <= cfg.range_m  # as pipeline.label does
+        colors = None if scan.colors is None else scan.colors[keep]
+        new, point_rows = vmap.insert(world[keep], colors, t, scan.class_ids[keep], scan.instance_ids[keep])
+        ctx = vmap.context_rows(vmap.positions[new], cfg.context_cell_m, cfg.context_points, rng)
+        rows.append(new.astype(np.int64))
+        contexts.append(ctx.astype(np.int64))
+        sample_scan.append(np.full(len(new), t, np.int64))
+        origins.append(end[:3, 3].copy())
+        floors.append(floor_height(world))
+        stamps.append(scan.stamp_s)
+        scan_rows.append(np.unique(point_rows).astype(np.int64))
+        new_rows.append(new.astype(np.int64))
+    m = cfg.context_points
+    return Mission(
+        positions=vmap.positions.copy(),
+        colors=vmap.colors.copy(),
+        classes=vmap.true_class_ids.astype(np.int64),
+        instances=vmap.true_instance_ids.astype(np.int64),
+        rows=np.concatenate(rows) if rows else np.zeros(0, np.int64),
+        context=np.concatenate(contexts) if contexts else np.zeros((0, m), np.int64),
+        sample_scan=np.concatenate(sample_scan) if sample_scan else np.zeros(0, np.int64),
+        origins=np.array(origins).reshape(-1, 3),
+        floors=np.array(floors),
+        stamps=np.array(stamps),
+        scan_rows=scan_rows,
+        new_rows=new_rows,
+    )
+
+
+def open_mission(family: str, seed: int, scans: int) -> SimMission:
+    """The simulated mission `sim://FAMILY?seed=N&sensor=vlp16&scans=N` describes."""
+    return SimMission(build_scene(family, seed=seed), get_profile(SENSOR), seed=seed, scans=scans)
+
+
+class Pool:
+    """Several staged missions joined into one table: rows offset per mission, instances made unique."""
+
+    def __init__(self, missions: list[Mission]) -> None:
+        offsets = np.cumsum([0] + [len(m.positions) for m in missions])
+        self.positions = np.concatenate([m.positions for m in missions])
+        self.colors = np.concatenate([m.colors for m in missions]).astype(np.float32) / 255.0
+        self.classes = np.concatenate([m.classes for m in missions])
+        inst = [np.where(m.instances > 0, m.instances + (i << 32), 0) for i, m in enumerate(missions)]
+        self.instances = np.concatenate(inst)
+        self.rows = np.concatenate([m.rows + o for m, o in zip(missions, offsets, strict=False)])
+        self.context = np.concatenate(
+            [np.where(m.context >= 0, m.context + o, -1) for m, o in zip(missions, offsets, strict=False)]
+        )
+        self.origin = np.concatenate([m.origins[m.sample_scan] for m in missions])
+        self.floor = np.concatenate([m.floors[m.sample_scan] for m in missions])
+        known = self.classes[self.rows] != UNLABELLED
+        for name in ("rows", "context", "origin", "floor"):
+            setattr(self, name, getattr(self, name)[known])
+        self.sample_class = self.classes[self.rows]
+        self.sample_instance = self.instances[self.rows]
+        # Instances with at least two training points, and where their points sit in the sample arrays.
+        order = np.argsort(self.sample_instance, kind="stable")
+        ids, start, count = np.unique(self.sample_instance[order], return_index=True, return_counts=True)
+        good = (ids > 0) & (count >= 2)
+        self.inst_order, self.inst_start, self.inst_count = order, start[good], count[good]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def features(
+        self, idx: np.ndarray, rng: np.random.Generator, augment: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Point features (B, 7), context (B, M, 6) and mask (B, M) of samples `idx`."""
+        rows = self.rows[idx]
+        pos = self.positions[rows]
+        pf = np.zeros((len(idx), POINT_DIM), np.float32)
+        pf[:, 0:2] = pos[:, 0:2] - self.origin[idx, 0:2]
+        pf[:, 2] = pos[:, 2] - self.floor[idx]
+        pf[:, 3:6] = self.colors[rows] - 0.5
+        pf[:, 6] = 1.0
+        ctx_rows = self.context[idx]
+        mask = ctx_rows >= 0
+        safe = np.where(mask, ctx_rows, rows[:, None])
+        ctx = np.zeros((*ctx_rows.shape, CONTEXT_DIM), np.float32)
+        ctx[..., 0:3] = self.positions[safe] - pos[:, None, :]
+        ctx[..., 3:6] = self.colors[safe] - self.colors[rows][:, None, :]
+        if augment:
+            angle = rng.uniform(0, 2 * np.pi, len(idx)).astype(np.float32)
+            c, s = np.cos(angle), np.sin(angle)
+            x, y = pf[:, 0].copy(), pf[:, 1].copy()
+            pf[:, 0], pf[:, 1] = c * x - s * y, s * x + c * y
+            x, y = ctx[..., 0].copy(), ctx[..., 1].copy()
+            ctx[..., 0], ctx[..., 1] = c[:, None] * x - s[:, None] * y, s[:, None] * x + c[:, None] * y
+            drop = rng.random(len(idx)) < COLOR_DROP
+            pf[drop, 3:7] = 0.0
+            ctx[drop, :, 3:6] = 0.0
+        return pf, ctx, mask
+
+    def instance_batch(self, rng: np.random.Generator) -> np.ndarray:
+        """16 instances x 16 points (with replacement where an instance has fewer), as sample indices."""
+        pick = rng.choice(len(self.inst_start), size=min(BATCH_INSTANCES, len(self.inst_start)), replace=False)
+        offs = (rng.random((len(pick), POINTS_PER_INSTANCE)) * self.inst_count[pick, None]).astype(np.int64)
+        return self.inst_order[self.inst_start[pick, None] + offs].ravel()
+
+
+def semihard_triplet_loss(emb: torch.Tensor, labels: torch.Tensor, margin: float = MARGIN) -> torch.Tensor:
+    """Semi-hard triplet loss on squared distances of unit embeddings, over every anchor-positive pair:
+    the negative is the closest one farther than the positive, else the farthest negative."""
+    d = (2.0 - 2.0 * emb @ emb.T).clamp_min(0.0)
+    same = labels[:, None] == labels[None, :]
+    eye = torch.eye(len(labels), dtype=torch.bool)
+    pos = same & ~eye
+    neg = ~same
+    if not pos.any() or not neg.any():
+        return emb.sum() * 0.0
+    # outside[a, p, n]: negative n lies beyond the positive p for anchor a.
+    outside = neg[:, None, :] & (d[:, None, :] > d[:, :, None])
+    big = torch.finfo(d.dtype).max
+    closest_outside = torch.where(outside, d[:, None, :], torch.full_like(d[:, None, :], big)).amin(dim=2)
+    farthest = torch.where(neg, d, torch.zeros_like(d)).amax(dim=1, keepdim=True).expand_as(d)
+    d_an = torch.where(outside.any(dim=2), closest_outside, farthest)
+    loss = (margin + d - d_an).clamp_min(0.0)
+    return loss[pos].mean()
+
+
+def train_mcpnet(pool: Pool, cfg: NetConfig, epochs: int, seed: int, log: bool = True) -> tuple[MCPNet, dict]:
+    """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    model = MCPNet(cfg)
+    opt = torch.optim.Adam(model.parameters(), lr=LEARNING_RATE)
+    batch = BATCH_INSTANCES * POINTS_PER_INSTANCE
+    steps = max(1, len(pool) // batch)
+    ce = nn.CrossEntropyLoss()
+    use_ctx = cfg.kind == "mcpnet"
+    history = []
+    start = time.perf_counter()
+    for epoch in range(epochs):
+        tot_t = tot_c = acc = 0.0
+        for _ in range(steps):
+            inst_idx = pool.instance_batch(rng)
+            uni_idx = rng.integers(0, len(pool), batch)  # class frequencies as the stream sees them
+            idx = np.concatenate([inst_idx, uni_idx])
+            pf, ctx, mask = pool.features(idx, rng, augment=True)
+            emb, logits = model(
+                torch.from_numpy(pf),
+                torch.from_numpy(ctx) if use_ctx else None,
+                torch.from_numpy(mask) if use_ctx else None,
+            )
+            labels = torch.from_numpy(pool.sample_class[idx])
+            inst = torch.from_numpy(pool.sample_instance[inst_idx])
+            lt = semihard_triplet_loss(emb[: len(inst_idx)], inst)
+            lc = ce(logits, labels)
+            opt.zero_grad()
+            (lt + lc).backward()
+            opt.step()
+            tot_t += float(lt)
+            tot_c += float(lc)
+            acc += float((logits.argmax(1) == labels).float().mean())
+        history.append({"epoch": epoch + 1, "triplet": tot_t / steps, "ce": tot_c / steps, "acc": acc / steps})
+        if log:
+            h = history[-1]
+            print(
+                f"[{cfg.kind}] epoch {epoch + 1}/{epochs}: triplet {h['triplet']:.3f} ce {h['ce']:.3f} "
+                f"acc {h['acc']:.3f} ({time.perf_counter() - start:.0f} s)",
+                flush=True,
+            )
+    model.eval()
+    return model, {"steps_per_epoch": steps, "history": history, "seconds": round(time.perf_counter() - start, 1)}
+
+
+# ----------------------------------------------------------------------------------------------- PointNet
+
+
+def expansion_rows(mission: Mission, t: int, mode: str) -> np.ndarray:
+    """Map rows PointNet sees at scan t: the scan alone, with the scans of the last 0.1 s, or within 0.5 m."""
+    if mode == "single":
+        return mission.scan_rows[t]
+    if mode == "temporal":
+        near = np.flatnonzero(mission.stamps[: t + 1] >= mission.stamps[t] - TEMPORAL_WINDOW_S - 1e-6)
+    else:
+        d = np.linalg.norm(mission.origins[: t + 1, :2] - mission.origins[t, :2], axis=1)
+        near = np.flatnonzero(d <= SPATIAL_WINDOW_M)
+    return np.unique(np.concatenate([mission.scan_rows[i] for i in near]))
+
+
+def train_pointnet(
+    missions: list[Mission], cfg: NetConfig, epochs: int, seed: int, log: bool = True
+) -> tuple[PointNet, dict]:
+    """One PointNet for all three online baselines: each training cloud is a scan expanded one of three ways."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    model = PointNet(cfg)
+    opt = torch.optim.Adam(model.parameters(), lr=LEARNING_RATE)
+    ce = nn.CrossEntropyLoss(ignore_index=-1)
+    scans = [(i, t) for i, m in enumerate(missions) for t in range(len(m.scan_rows)) if len(m.new_rows[t])]
+    steps = max(1, len(scans) // POINTNET_CLOUDS_PER_STEP)
+    history = []
+    start = time.perf_counter()
+    for epoch in range(epochs):
+        order = rng.permutation(len(scans))
+        tot_t = tot_c = acc = 0.0
+        for s in range(steps):
+            pick = order[s * POINTNET_CLOUDS_PER_STEP : (s + 1) * POINTNET_CLOUDS_PER_STEP]
+            feats, labels, insts, masks = [], [], [], []
+            for k in pick:
+                i, t = scans[k]
+                m = missions[i]
+                rows = expansion_rows(m, t, ("single", "temporal", "spatial")[rng.integers(3)])
+                if len(rows) > POINTNET_MAX_POINTS:
+                    rows = rng.choice(rows, POINTNET_MAX_POINTS, replace=False)
+                f = point_features(m.positions[rows], m.colors[rows], m.origins[t], m.floors[t])
+                angle = rng.uniform(0, 2 * np.pi)
+                c, sn = np.cos(angle), np.sin(angle)
+                f[:, 0], f[:, 1] = c * f[:, 0] - sn * f[:, 1], sn * f[:, 0] + c * f[:, 1]
+                if rng.random() < COLOR_DROP:
+                    f[:, 3:7] = 0.0
+                pad = POINTNET_MAX_POINTS - len(rows)
+                cls = np.where(m.classes[rows] == UNLABELLED, -1, m.classes[rows])
+                feats.append(np.pad(f, ((0, pad), (0, 0))))
+                labels.append(np.pad(cls, (0, pad), constant_values=-1))
+                insts.append(np.pad(m.instances[rows], (0, pad)))
+                masks.append(np.arange(POINTNET_MAX_POINTS) < len(rows))
+            emb, logits = model(torch.from_numpy(np.stack(feats)), torch.from_numpy(np.stack(masks)))
+            lab = torch.from_numpy(np.stack(labels))
+            lc = ce(logits.reshape(-1, cfg.num_classes), lab.reshape(-1))
+            lt = torch.zeros(())
+            for b in range(len(pick)):
+                sel = _instance_subset(insts[b], masks[b], rng)
+                if len(sel):
+                    lt = lt + semihard_triplet_loss(emb[b, sel], torch.from_numpy(insts[b][sel])) / len(pick)
+            opt.zero_grad()
+            (lt + lc).backward()
+            opt.step()
+            tot_t += float(lt)
+            tot_c += float(lc)
+            valid = lab >= 0
+            acc += float((logits.argmax(-1)[valid] == lab[valid]).float().mean())
+        history.append({"epoch": epoch + 1, "triplet": tot_t / steps, "ce": tot_c / steps, "acc": acc / steps})
+        if log:
+            h = history[-1]
+            print(
+                f"[pointnet] epoch {epoch + 1}/{epochs}: triplet {h['triplet']:.3f} ce {h['ce']:.3f} "
+                f"acc {h['acc']:.3f} ({time.perf_counter() - start:.0f} s)",
+                flush=True,
+            )
+    model.eval()
+    return model, {"steps_per_epoch": steps, "history": history, "seconds": round(time.perf_counter() - start, 1)}
+
+
+def _instance_subset(insts: np.ndarray, mask: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Up to 16 points of each of up to 16 instances of one cloud, for the triplet loss."""
+    valid = np.flatnonzero(mask & (insts > 0))
+    if not len(valid):
+        return valid
+    ids = np.unique(insts[valid])
+    ids = rng.choice(ids, min(BATCH_INSTANCES, len(ids)), replace=False)
+    out = []
+    for i in ids:  # at most 16 instances per cloud
+        members = valid[insts[valid] == i]
+        out.append(rng.choice(members, min(POINTS_PER_INSTANCE, len(members)), replace=False))
+    return np.concatenate(out)
+
+
+# ----------------------------------------------------------------------------------------------- entry point
+
+
+def stage_all(seeds: Iterable[int], scans: int, cfg: NetConfig, seed: int, log: bool = True) -> list[Mission]:
+    """Missions of both families for each seed."""
+    rng = np.random.default_rng(seed)
+    missions = []
+    for s in seeds:
+        for family in FAMILIES:
+            t0 = time.perf_counter()
+            missions.append(stage_mission(open_mission(family, s, scans), cfg, rng))
+            if log:
+                m = missions[-1]
+                print(
+                    f"staged {family} seed {s}: {len(m.rows)} points, {len(m.positions)} voxels "
+                    f"({time.perf_counter() - t0:.1f} s)",
+                    flush=True,
+                )
+    return missions
+
+
+def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict[str, Any]:
+    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights.
+
+    `out` is the MCPNet weights file (default models/weights/mcpnet.pt); the baselines go beside it.
+    """
+    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet.pt"
+    paths = {
+        "mcpnet": out,
+        "mcpnet-nocontext": out.with_name(out.stem + "_nocontext.pt"),
+        "pointnet": out.with_name("pointnet.pt") if out.stem == "mcpnet" else out.with_name(out.stem + "_pointnet.pt"),
+    }
+    for p in paths.values():
+        if p.exists() and not force:
+            raise OutputError("weights file exists; pass --force to overwrite", p)
+    epochs = EPOCHS if epochs is None else epochs
+    start = time.perf_counter()
+    base = NetConfig()
+    missions = stage_all(TRAIN_SEEDS, TRAIN_SCANS, base, seed)
+    pool = Pool(missions)
+    figures: dict[str, Any] = {
+        "train_seeds": list(TRAIN_SEEDS),
+        "families": list(FAMILIES),
+        "sensor": SENSOR,
+        "scans_per_mission": TRAIN_SCANS,
+        "training_points": len(pool),
+        "epochs": epochs,
+        "seed": seed,
+        "staging_seconds": round(time.perf_counter() - start, 1),
+    }
+    for kind in ("mcpnet", "mcpnet-nocontext"):
+        cfg = NetConfig(kind=kind)
+        model, fig = train_mcpnet(pool, cfg, epochs, seed)
+        fig["parameters"] = num_parameters(model)
+        save_weights(paths[kind], model, cfg, {**figures, **fig})
+        figures[kind] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+    cfg = NetConfig(kind="pointnet")
+    model, fig = train_pointnet(missions, cfg, epochs, seed)
+    fig["parameters"] = num_parameters(model)
+    save_weights(paths["pointnet"], model, cfg, {**figures, **fig})
+    figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+    figures["weights"] = {k: str(p) for k, p in paths.items()}
+    figures["sizes_bytes"] = {k: p.stat().st_size for k, p in paths.items()}
+    figures["total_seconds"] = round(time.perf_counter() - start, 1)
+    return figures

@@ -1,0 +1,152 @@
+"""MCPNet as the online labeller: every voxel a scan opens gets a class, a score and a unit embedding, from
+its own features and 50 context points drawn from the voxel map (earlier scans included).
+
+All new voxels of a scan go through the network in one batch (chunked only to bound memory). Without
+colour in the log, the colour-free mode of the same weights is used (colour features zero, colour flag off).
+The clustering stage links neighbouring voxels whose embeddings agree: cosine similarity above β.
+
+    labeller = create(cfg)                    # the shipped weights, models/weights/mcpnet.pt
+    labeller.label(vmap, new_rows, frame)     # writes class_ids, scores, embeddings of new_rows
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import torch
+
+from models.mcpnet import NetConfig, context_features, default_weights, load_model, point_features
+from pipeline.config import Config, Environment
+from pipeline.types import Frame, LabelledCloud
+from pipeline.voxel_map import VoxelMap
+
+NAME: Final = "mcpnet"
+NO_CONTEXT: Final = "mcpnet-nocontext"
+CHUNK: Final = 4096  # voxels per forward pass; bounds memory at about 4096 x 50 x 200 floats
+FLOOR_PERCENTILE: Final = 1.0
+RELABEL_PER_NEW: Final = 4  # with relabelling on: at most this many older voxels re-classed per new voxel
+EMBED_REACH_M: Final = 1.5  # embed_cloud: each point is seen from at most this far away, as in a scan
+
+
+def floor_height(world_points: np.ndarray) -> float:
+    """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns)."""
+    if not len(world_points):
+        return 0.0
+    return float(np.percentile(world_points[:, 2], FLOOR_PERCENTILE))
+
+
+class MCPNetLabeller:
+    """The `Labeller` of `pipeline.label` backed by an MCPNet (or, with other weights, its no-context variant)."""
+
+    name: str = NAME
+
+    def __init__(self, cfg: Config, weights: str | Path | None = None, kind: str = "mcpnet") -> None:
+        self.name = kind
+        path = Path(weights or default_weights(kind))
+        self.model, self.net, self.figures = load_model(path, kind=kind)
+        self.weights = path
+        self.embedding_dim = self.net.embed_dim
+        self.cell_m = cfg.map.context_cell_m
+        self.num = cfg.map.context_points
+        outdoor = cfg.label.environment is Environment.OUTDOOR
+        self.beta = cfg.cluster.beta_outdoor if outdoor else cfg.cluster.beta_indoor
+        self.relabel = cfg.label.relabel_old_voxels
+        self.rng = np.random.default_rng(0)  # context draws: the same run gives the same labels
+
+    @property
+    def config(self) -> NetConfig:
+        return self.net
+
+    def predict(
+        self,
+        vmap: VoxelMap,
+        rows: np.ndarray,
+        origin: np.ndarray,
+        floor_z: float,
+        use_color: bool,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Class ids (K,) uint16, scores (K,) float32 and embeddings (K, E) float32 of map rows, seen from
+        the robot at `origin` ((3,), or (K, 3) one per row)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        k = len(rows)
+        classes = np.zeros(k, np.uint16)
+        scores = np.zeros(k, np.float32)
+        emb = np.zeros((k, self.embedding_dim), np.float32)
+        colors = vmap.colors if use_color else None
+        use_ctx = self.net.kind == "mcpnet"
+        for s in range(0, k, CHUNK):
+            r = rows[s : s + CHUNK]
+            o = origin[s : s + CHUNK] if origin.ndim == 2 else origin
+            pf = point_features(vmap.positions[r], None if colors is None else colors[r], o, floor_z)
+            ctx = mask = None
+            if use_ctx:
+                ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, self.rng)
+                c, m = context_features(vmap.positions, colors, r, ctx_rows)
+                ctx, mask = torch.from_numpy(c), torch.from_numpy(m)
+            with torch.inference_mode():
+                e, logits = self.model(torch.from_numpy(pf), ctx, mask)
+                prob = torch.softmax(logits, dim=1)
+                best, cls = prob.max(dim=1)
+            classes[s : s + CHUNK] = cls.numpy().astype(np.uint16)
+            scores[s : s + CHUNK] = best.numpy()
+            emb[s : s + CHUNK] = e.numpy()
+        return classes, scores, emb
+
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
+        """Label the voxels this scan opened (and, with `label.relabel_old_voxels`, re-class the older voxels
+        this scan saw again, now that more context surrounds them)."""
+        origin = frame.pose[:3, 3] if frame.pose is not None else np.zeros(3)
+        world = frame.world_points if frame.world_points is not None else np.zeros((0, 3))
+        floor_z = floor_height(world)
+        use_color = frame.scan.colors is not None
+        rows = np.asarray(new_rows, dtype=np.int64)
+        if self.relabel and frame.keep is not None and len(vmap):
+            seen = vmap.lookup_points(world[frame.keep])
+            seen = np.unique(seen[seen >= 0])
+            old = seen[vmap.first_seq[seen] < frame.seq]
+            budget = RELABEL_PER_NEW * len(rows)  # bounded: relabelling must not dominate the scan time
+            rows_old = self.rng.choice(old, budget, replace=False) if len(old) > budget else old
+        else:
+            rows_old = np.zeros(0, np.int64)
+        classes, scores, emb = self.predict(vmap, np.r_[rows, rows_old], origin, floor_z, use_color)
+        n = len(rows)
+        vmap.class_ids[rows] = classes[:n]
+        vmap.scores[rows] = scores[:n]
+        vmap.embeddings[rows] = emb[:n]
+        if len(rows_old):
+            # An older voxel takes the new class only when the network is now surer of it.
+            better = scores[n:] > vmap.scores[rows_old]
+            vmap.class_ids[rows_old[better]] = classes[n:][better]
+            vmap.scores[rows_old[better]] = scores[n:][better]
+
+    def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
+        """Link two voxels when their embeddings' cosine similarity exceeds β."""
+        ea, eb = vmap.embeddings[rows_a], vmap.embeddings[rows_b]
+        return np.einsum("ij,ij->i", ea, eb) > self.beta
+
+    def embed_cloud(self, cloud: LabelledCloud) -> np.ndarray:
+        """Unit embeddings (N, E) of every point of a static cloud, its context drawn from the cloud itself.
+
+        The cloud goes into a voxel map of its own (a point takes the embedding of its voxel); each point is
+        described as if the robot stood towards the cloud's centre, at most 1.5 m away as in a scan, on the
+        cloud's floor (its lowest heights)."""
+        pts = np.asarray(cloud.points, dtype=np.float64)
+        if not len(pts):
+            return np.zeros((0, self.embedding_dim), np.float32)
+        vmap = VoxelMap(self.net.voxel_m)
+        _, point_rows = vmap.insert(pts, cloud.colors)
+        stored = vmap.positions[point_rows]
+        offset = stored - np.r_[np.median(pts[:, :2], axis=0), 0.0]
+        offset[:, 2] = 0.0
+        dist = np.linalg.norm(offset, axis=1, keepdims=True)
+        origin = stored - offset * np.minimum(1.0, EMBED_REACH_M / np.maximum(dist, 1e-9))
+        _, _, emb = self.predict(vmap, point_rows, origin, floor_height(pts), cloud.colors is not None)
+        return emb
+
+
+def create(cfg: Config) -> MCPNetLabeller:
+    """MCPNet, or the same network without context pooling when `label.labeller` is "mcpnet-nocontext"."""
+    kind = NO_CONTEXT if cfg.label.labeller == NO_CONTEXT else NAME
+    return MCPNetLabeller(cfg, weights=cfg.label.weights if kind == NAME else None, kind=kind)
