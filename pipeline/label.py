@@ -23,6 +23,10 @@ from pipeline.voxel_map import VoxelMap
 LABELLERS: Final[dict[str, str]] = {
     "mcpnet": "mcpnet",
     "region-growing": "region_growing",
+    "mcpnet-nocontext": "mcpnet",
+    "pointnet": "pointnet_online",
+    "pointnet-temporal": "pointnet_online",
+    "pointnet-spatial": "pointnet_online",
 }
 FALLBACK_LABELLER: Final = "region-growing"
 
@@ -56,6 +60,8 @@ def make_labeller(name: str, cfg: Config) -> Labeller:
         if exc.name == full:
             raise InputError(f"labeller {name!r} is not available in this build") from None
         raise
+    if cfg.label.labeller != name:  # a module serving several names reads which one from the config
+        cfg = cfg.model_copy(update={"label": cfg.label.model_copy(update={"labeller": name})})
     try:
         labeller = module.create(cfg)
     except FileNotFoundError as exc:
