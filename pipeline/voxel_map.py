@@ -336,10 +336,17 @@ class VoxelMap:
         return self._table.find(keys.ravel()).reshape(len(rows), len(offsets))
 
     def context_rows(
-        self, points: np.ndarray, cell_m: float = 0.3, num: int = 50, rng: np.random.Generator | None = None
+        self,
+        points: np.ndarray,
+        cell_m: float = 0.3,
+        num: int = 50,
+        rng: np.random.Generator | None = None,
+        uniform: np.ndarray | None = None,
     ) -> np.ndarray:
         """(K, num) rows drawn with replacement from the stored points in the 3 x 3 x 3 block of `cell_m`
-        cells around each point (MCPNet's context); -1 in rows with no stored point nearby."""
+        cells around each point (MCPNet's context); -1 in rows with no stored point nearby.
+        `uniform` (K, num) numbers in [0, 1) replace the draws from `rng` (e.g. hashed from each point's
+        voxel, so that a point's context does not depend on the other points asked about with it)."""
         rng = rng or np.random.default_rng(0)
         index = self._cells.get(cell_m)
         if index is None:
@@ -355,7 +362,8 @@ class VoxelMap:
         counts = np.where(cells >= 0, index.counts[np.maximum(cells, 0)], 0)
         cum = np.cumsum(counts, axis=1)
         total = cum[:, -1]
-        draw = (rng.random((k, num)) * total[:, None]).astype(np.int64)
+        u = rng.random((k, num)) if uniform is None else np.asarray(uniform, dtype=np.float64).reshape(k, num)
+        draw = np.minimum((u * total[:, None]).astype(np.int64), np.maximum(total[:, None] - 1, 0))
         which = (draw[:, :, None] >= cum[:, None, :]).sum(axis=2)  # (K, num) index of the cell among the 27
         which = np.minimum(which, 26)
         before = np.take_along_axis(cum - counts, which, axis=1)
