@@ -1,0 +1,140 @@
+"""File exports into one folder: the final labelled map, the trajectory in two common text formats, a summary.
+
+- `map.ply`: the final labelled map in the DESIGN.md PLY format (`x y z`, `red green blue` = class colour,
+  `class_id`, `instance_id`), through `pipeline.cloud_io.write_cloud`.
+- `poses_tum.txt`: `timestamp tx ty tz qx qy qz qw` per scan (TUM RGB-D format, seconds since the epoch).
+- `poses_kitti.txt`: the first three rows of each 4 x 4 pose, row-major, 12 numbers per line (KITTI odometry).
+- `summary.json`: the `RunSummary` fields, the source, and per-class instance and point counts of the map.
+
+Poses are the sensor poses at the scan stamps, written line by line as the scans are registered, so an
+interrupted run keeps every pose it computed; the map and summary are written at the end (also after Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Final, TextIO
+
+import numpy as np
+
+from pipeline.classes import CLASS_NAMES, NUM_CLASSES, class_colors
+from pipeline.cloud_io import check_output, write_cloud
+from pipeline.errors import OutputError
+from pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
+from sinks.base import Sink, Stage
+from sources.pointcloud2 import matrix_to_quaternion
+
+MAP_FILE: Final = "map.ply"
+TUM_FILE: Final = "poses_tum.txt"
+KITTI_FILE: Final = "poses_kitti.txt"
+SUMMARY_FILE: Final = "summary.json"
+
+
+def tum_line(stamp_ns: int, pose: np.ndarray) -> str:
+    """One TUM trajectory line; the stamp is printed exactly (integer seconds and nanoseconds)."""
+    sec, ns = divmod(int(stamp_ns), 1_000_000_000)
+    t = pose[:3, 3]
+    q = matrix_to_quaternion(pose[:3, :3])
+    values = " ".join(f"{v:.9g}" for v in (*t, *q))
+    return f"{sec}.{ns:09d} {values}\n"
+
+
+def kitti_line(pose: np.ndarray) -> str:
+    return " ".join(f"{v:.9g}" for v in np.asarray(pose, dtype=np.float64)[:3, :4].reshape(-1)) + "\n"
+
+
+def map_statistics(cloud: LabelledCloud) -> dict[str, dict[str, int]]:
+    """Points per class and distinct instances per class (by each instance's majority class) of a map."""
+    out: dict[str, dict[str, int]] = {"points_per_class": {}, "instances_per_class": {}}
+    if cloud.class_ids is None:
+        return out
+    cls = cloud.class_ids.astype(np.int64)
+    known = cls < NUM_CLASSES
+    counts = np.bincount(cls[known], minlength=NUM_CLASSES)
+    out["points_per_class"] = {CLASS_NAMES[c]: int(counts[c]) for c in np.flatnonzero(counts)}
+    if cloud.instance_ids is not None:
+        inst = cloud.instance_ids.astype(np.int64)
+        ok = known & (inst > 0)
+        if ok.any():
+            ids, inv = np.unique(inst[ok], return_inverse=True)
+            votes = np.zeros((len(ids), NUM_CLASSES), np.int64)
+            np.add.at(votes, (inv.reshape(-1), cls[ok]), 1)
+            per_class = np.bincount(votes.argmax(axis=1), minlength=NUM_CLASSES)
+            out["instances_per_class"] = {CLASS_NAMES[c]: int(per_class[c]) for c in np.flatnonzero(per_class)}
+    return out
+
+
+class FileExportSink(Sink):
+    """Writes map.ply, poses_tum.txt, poses_kitti.txt and summary.json into `folder`.
+
+    Every path is checked when the sink is made (exists without `force`, folder not writable); files are
+    created from `begin` on.
+    """
+
+    def __init__(self, folder: Path, force: bool = False) -> None:
+        self.folder = Path(folder)
+        if self.folder.exists() and not self.folder.is_dir():
+            raise OutputError("exists and is not a folder", self.folder)
+        self.map_path = check_output(self.folder / MAP_FILE, force)
+        self.tum_path = check_output(self.folder / TUM_FILE, force)
+        self.kitti_path = check_output(self.folder / KITTI_FILE, force)
+        self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
+        self.force = force
+        self._info: RunInfo | None = None
+        self._tum: TextIO | None = None
+        self._kitti: TextIO | None = None
+        self._written: set[int] = set()
+        self.poses_written = 0
+
+    def begin(self, info: RunInfo) -> None:
+        self._info = info
+        try:
+            self._tum = open(self.tum_path, "w")  # noqa: SIM115 (kept open for the whole run)
+            self._kitti = open(self.kitti_path, "w")  # noqa: SIM115
+        except OSError as exc:
+            raise OutputError(f"cannot write: {exc.strerror}", self.folder) from None
+
+    def stage(self, frame: Frame, stage: Stage) -> None:
+        if stage is not Stage.REGISTERED or frame.seq in self._written or self._tum is None or self._kitti is None:
+            return
+        pose = frame.stamp_pose if frame.stamp_pose is not None else frame.pose
+        if pose is None:
+            return
+        self._written.add(frame.seq)
+        self._tum.write(tum_line(frame.scan.stamp_ns, pose))
+        self._kitti.write(kitti_line(pose))
+        self.poses_written += 1
+
+    def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
+        self._close_poses()
+        cloud = final_map
+        if cloud.class_ids is not None and cloud.colors is None:
+            cloud = LabelledCloud(
+                cloud.points, class_colors(cloud.class_ids), cloud.intensity, cloud.class_ids, cloud.instance_ids
+            )
+        write_cloud(self.map_path, cloud, force=True)  # checked at construction
+        data = asdict(summary)
+        stats = map_statistics(final_map)
+        if not data["instances_per_class"]:
+            data["instances_per_class"] = stats["instances_per_class"]
+        data["map_points"] = len(final_map)
+        data["map_points_per_class"] = stats["points_per_class"]
+        data["poses_written"] = self.poses_written
+        if self._info is not None:
+            data["source"] = asdict(self._info)
+        data["files"] = {"map": MAP_FILE, "poses_tum": TUM_FILE, "poses_kitti": KITTI_FILE}
+        try:
+            self.summary_path.write_text(json.dumps(data, indent=2) + "\n")
+        except OSError as exc:
+            raise OutputError(f"cannot write: {exc.strerror}", self.summary_path) from None
+
+    def close(self) -> None:
+        self._close_poses()
+
+    def _close_poses(self) -> None:
+        for f in (self._tum, self._kitti):
+            if f is not None:
+                f.close()
+        self._tum = self._kitti = None
