@@ -119,7 +119,9 @@ def _tail_is_magic(fh: IO[bytes]) -> bool:
     if fh.tell() < 2 * len(MCAP_MAGIC):
         return False
     fh.seek(-len(MCAP_MAGIC), 2)
-    return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    ok = fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    fh.seek(0)
+    return ok
 
 
 def read_catalog(path: Path, progress: bool = False) -> McapCatalog:
@@ -130,7 +132,7 @@ def read_catalog(path: Path, progress: bool = False) -> McapCatalog:
     with path.open("rb") as fh:
         summary = None
         if _tail_is_magic(fh):
-            try:
+            try:  # SeekingReader checks the magic where the handle stands: at the start
                 summary = SeekingReader(fh, record_size_limit=_RECORD_LIMIT).get_summary()
                 fh.seek(0)
                 cat.profile = SeekingReader(fh, record_size_limit=_RECORD_LIMIT).get_header().profile

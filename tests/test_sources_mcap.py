@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 import sources
 from pipeline.errors import DamagedLogWarning, InputError
+from sources.mcap_source import read_catalog
 
 
 def clouds(k: int, n: int = 200) -> list[dict]:
@@ -123,6 +124,8 @@ def test_cut_off_log_yields_complete_scans_then_warns(tmp_path: Path) -> None:
     assert len(chunk_offsets(full)) >= 6  # one scan per chunk
     cut = tmp_path / "cut.mcap"
     truncate_in_chunk(full, cut, 4)  # the 5th scan is damaged
+    assert read_catalog(full).indexed and read_catalog(full).damage is None  # read through its index
+    assert not read_catalog(cut).indexed and "cut off" in read_catalog(cut).damage
     with pytest.warns(DamagedLogWarning, match=r"cut off at byte .*read 4 complete scans"):
         scans = list(sources.open(cut))
     assert len(scans) == 4
