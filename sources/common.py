@@ -185,7 +185,7 @@ def assemble(
     """Scans from a reader's events: keep every `every`-th cloud, decode it, drop invalid points,
     attach the ground-truth pose, number the scans, stop after `max_scans`; warn at damage."""
     check_window(None, None, every, max_scans)
-    pending: deque[Scan] = deque()  # decoded scans waiting for the pose after their stamp
+    pending: deque[Scan] = deque()  # decoded scans waiting for a pose at or after their stamp
     track = PoseTrack()
     clouds = 0
     empty = 0
@@ -202,6 +202,17 @@ def assemble(
         seq += 1
         return scan
 
+    wait_ns = round(POSE_WAIT_S * 1e9)
+
+    def due(now_ns: int, flush: bool) -> Iterator[Scan]:
+        """Pending scans, in order, whose pose is settled: a later pose exists, or they waited long enough."""
+        while pending:
+            head = pending[0]
+            settled = track.latest_ns is not None and head.stamp_ns <= track.latest_ns
+            if not (flush or settled or (head.log_time_ns or 0) < now_ns - wait_ns):
+                return
+            yield finish(pending.popleft())
+
     with bar(total, desc=Path(str(path)).name, show=progress) as pbar:
         for ev in events:
             if isinstance(ev, Damage):
@@ -209,35 +220,25 @@ def assemble(
                 break
             if isinstance(ev, PoseMessage):
                 track.add(ev.stamp_ns, ev.matrix)
-                while pending and pending[0].stamp_ns <= ev.stamp_ns:
-                    yield finish(pending.popleft())
-                    pbar.update(1)
-                    if max_scans is not None and seq >= max_scans:
-                        return
-                continue
-            clouds += 1
-            if (clouds - 1) % every:
-                continue
-            scan = _decode(ev, path)
-            if scan is None:
-                empty += 1
-                continue
-            if with_poses:
-                pending.append(scan)
-                horizon = ev.log_time_ns - round(POSE_WAIT_S * 1e9)
-                while pending and (pending[0].log_time_ns or 0) < horizon:
-                    yield finish(pending.popleft())
-                    pbar.update(1)
-                    if max_scans is not None and seq >= max_scans:
-                        return
             else:
-                yield finish(scan)
+                clouds += 1
+                if (clouds - 1) % every:
+                    continue
+                scan = _decode(ev, path)
+                if scan is None:
+                    empty += 1
+                    continue
+                pending.append(scan)
+            for scan in due(ev.log_time_ns, flush=not with_poses):
+                yield scan
                 pbar.update(1)
+                if max_scans is not None and seq >= max_scans:
+                    return
+        for scan in due(0, flush=True):
+            yield scan
+            pbar.update(1)
             if max_scans is not None and seq >= max_scans:
                 return
-        while pending and (max_scans is None or seq < max_scans):
-            yield finish(pending.popleft())
-            pbar.update(1)
     if damage is not None:
         warnings.warn(DamagedLogWarning(f"{path}: {damage}; read {seq} complete scans before the damage"), stacklevel=2)
     if seq == 0 and empty:

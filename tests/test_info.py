@@ -121,3 +121,15 @@ def test_cut_off_log_reports_what_precedes_and_warns(tmp_path: Path) -> None:
     assert "cut off" in report["damage"]
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"aftershock: warning: {cut}: the log is cut off at byte")
+
+
+def test_progress_bar_only_on_a_terminal() -> None:
+    from pipeline import progress
+
+    assert not progress.enabled(quiet=True)
+    assert not progress.enabled()  # pytest's captured stderr is not a terminal
+    with progress.bar(2, "log") as b:
+        assert b.disable
+    with progress.bar(2, "log", show=True) as b:
+        assert not b.disable and b.total == 2
+    assert list(progress.track(range(3), show=False)) == [0, 1, 2]
