@@ -1,0 +1,251 @@
+"""`aftershock run` and `aftershock eval` end to end: real logs to a recording that is read back, a log with
+ground truth scored, bad inputs and outputs refused in one line, Ctrl-C leaving a valid recording."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fixtures import write_ros2_mcap
+from rrd_read import read_rrd, rrd_verify
+
+from pipeline.classes import NUM_CLASSES, SemanticClass
+from pipeline.cli import main
+from pipeline.config import load_config
+from pipeline.stream import run_stream
+from pipeline.types import RunInfo, Scan
+from sinks import rerun_blueprint as L
+from sinks.rerun_sink import RerunSink
+
+REAL_LOGS = ("velodyne_vlp16_indoor.mcap", "ouster_os1_128_outdoor.mcap", "ouster_os1_64_ros1.mcap", "room_scan1.pcd")
+EVAL_KEYS = (
+    "overall_accuracy",
+    "mean_accuracy",
+    "mean_iou",
+    "nmi",
+    "ami",
+    "ari",
+    "precision",
+    "recall",
+    "ate_m",
+    "scans",
+    "scans_per_second",
+)
+
+
+def _run_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("name", REAL_LOGS)
+def test_real_logs_run_end_to_end(name: str, lidar_dir: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "run.rrd"
+    args = ["run", str(lidar_dir / name), "--save", str(out), "--labeller", "region-growing", "--quiet", "--json"]
+    code, stdout, _ = _run_cli(args, capsys)
+    assert code == 0
+    summary = json.loads(stdout)
+    assert summary["scans"] >= 1 and summary["map_voxels"] > 100 and summary["instances"] > 0
+    assert summary["registration_failures"] == []
+    assert set(summary["mean_timings_ms"]) >= {"register", "label", "cluster", "sinks"}
+
+    rec = read_rrd(out)
+    assert {L.SCAN_TIMELINE} <= rec.timelines
+    assert {L.ROBOT, L.REGISTERED, L.LABELS, L.INSTANCES} <= rec.entities
+    assert rec.under(L.MAP)
+    seqs = rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)
+    assert len(seqs) == summary["scans"]
+    classes = set(rec.values(L.LABELS, "Points3D:class_ids").astype(int).tolist())
+    assert classes and classes <= set(range(NUM_CLASSES))
+    assert rrd_verify(out).returncode == 0
+
+
+# ----------------------------------------------------------------------------------- a log with truth
+
+
+def _hall(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 12 x 8 x 3 m hall: floor, ceiling, four walls and three boxes, with classes and instances."""
+    pts, cls, inst = [], [], []
+
+    def face(origin, u, v, n, c, i) -> None:
+        a = rng.uniform(0, 1, (n, 2))
+        pts.append(np.asarray(origin) + a[:, :1] * u + a[:, 1:] * v)
+        cls.append(np.full(n, c, np.uint16))
+        inst.append(np.full(n, i, np.uint32))
+
+    x, y, z = np.eye(3)
+    face([0, 0, 0], 12 * x, 8 * y, 90_000, SemanticClass.FLOOR, 1)
+    face([0, 0, 3], 12 * x, 8 * y, 90_000, SemanticClass.CEILING, 2)
+    face([0, 0, 0], 12 * x, 3 * z, 30_000, SemanticClass.WALL, 3)
+    face([0, 8, 0], 12 * x, 3 * z, 30_000, SemanticClass.WALL, 4)
+    face([0, 0, 0], 8 * y, 3 * z, 20_000, SemanticClass.WALL, 5)
+    face([12, 0, 0], 8 * y, 3 * z, 20_000, SemanticClass.WALL, 6)
+    for k, (bx, by) in enumerate([(3, 2.2), (6, 5.6), (9, 2.4)]):
+        for origin, u, v in (
+            ([bx, by, 0], 0.8 * x, 0.7 * z),
+            ([bx, by + 0.8, 0], 0.8 * x, 0.7 * z),
+            ([bx, by, 0.7], 0.8 * x, 0.8 * y),
+            ([bx, by, 0], 0.8 * y, 0.7 * z),
+        ):
+            face(origin, u, v, 3000, SemanticClass.TABLE, 7 + k)
+    return np.vstack(pts), np.concatenate(cls), np.concatenate(inst)
+
+
+def write_truth_log(path: Path, scans: int = 30, points: int = 12_000, seed: int = 0) -> Path:
+    """A ROS 2 MCAP of a sensor driving down the hall at 1 m height, with class/instance fields and true poses."""
+    rng = np.random.default_rng(seed)
+    world, cls, inst = _hall(rng)
+    clouds, poses = [], []
+    for k in range(scans):
+        pose = np.eye(4)
+        pose[:3, 3] = [1.5 + 0.3 * k, 4.0 + 0.5 * np.sin(k / 5), 1.0]
+        near = np.flatnonzero(np.linalg.norm(world - pose[:3, 3], axis=1) < 15)
+        pick = rng.choice(near, min(len(near), points), replace=False)
+        local = world[pick] - pose[:3, 3] + rng.normal(0, 0.005, (len(pick), 3))
+        clouds.append(
+            {
+                "x": local[:, 0].astype(np.float32),
+                "y": local[:, 1].astype(np.float32),
+                "z": local[:, 2].astype(np.float32),
+                "class_id": cls[pick],
+                "instance_id": inst[pick],
+            }
+        )
+        poses.append(pose)
+    return write_ros2_mcap(path, clouds, poses=poses)
+
+
+def test_eval_scores_a_log_with_truth(tmp_path: Path, capsys) -> None:
+    log = write_truth_log(tmp_path / "hall.mcap")
+    code, stdout, _ = _run_cli(["eval", str(log), "--labeller", "region-growing", "--quiet", "--json"], capsys)
+    assert code == 0
+    rep = json.loads(stdout)
+    assert set(EVAL_KEYS) <= set(rep)
+    assert rep["scans"] == 30
+    assert rep["ate_m"] < 0.05  # the hall has structure in every direction
+    assert 0.5 < rep["overall_accuracy"] <= 1.0  # floor, ceiling and walls follow the geometric rules
+    assert {"floor", "ceiling", "wall", "table"} <= set(rep["per_class_iou"])
+    assert rep["per_class_iou"]["floor"] > 0.5 and rep["per_class_iou"]["table"] == 0.0
+    for key in ("nmi", "ami", "ari", "precision", "recall"):
+        assert 0.0 <= rep[key] <= 1.0
+    assert rep["nmi"] > 0.3
+    code, stdout, _ = _run_cli(["eval", str(log), "--labeller", "region-growing", "--quiet"], capsys)
+    assert code == 0 and "mean IoU" in stdout and "ATE" in stdout
+
+
+def test_eval_refuses_a_log_without_truth(lidar_dir: Path, capsys) -> None:
+    code, stdout, err = _run_cli(["eval", str(lidar_dir / "velodyne_vlp16_indoor.mcap"), "--quiet"], capsys)
+    assert code == 2 and stdout == ""
+    assert err.strip().endswith("the log carries no ground truth (class_id / instance_id point fields)")
+    assert len(err.strip().splitlines()) == 1
+
+
+# ----------------------------------------------------------------------------------- bad input and output
+
+
+def test_no_usable_scans(tmp_path: Path, capsys) -> None:
+    tiny = [{"x": np.ones(5, np.float32), "y": np.ones(5, np.float32), "z": np.ones(5, np.float32)}] * 3
+    log = write_ros2_mcap(tmp_path / "tiny.mcap", tiny)
+    code, stdout, err = _run_cli(["run", str(log), "--labeller", "region-growing", "--quiet"], capsys)
+    assert code == 2 and "no usable scans (3 scans, none with 100 points or more)" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_existing_and_unwritable_outputs_are_refused_before_work(lidar_dir: Path, tmp_path: Path, capsys) -> None:
+    log = str(lidar_dir / "velodyne_vlp16_indoor.mcap")
+    out = tmp_path / "run.rrd"
+    out.write_bytes(b"keep me")
+    code, _, err = _run_cli(["run", log, "--save", str(out), "--quiet"], capsys)
+    assert code == 2 and "already exists (pass --force to overwrite)" in err
+    assert out.read_bytes() == b"keep me"
+    code, _, _ = _run_cli(["run", log, "--save", str(out), "--force", "--quiet", "--labeller", "region-growing"], capsys)
+    assert code == 0 and out.stat().st_size > 1000
+    # A folder that cannot be made (a file is in the way) and, unless we are root, one that cannot be written.
+    (tmp_path / "a_file").write_text("")
+    code, _, err = _run_cli(["run", log, "--export", str(tmp_path / "a_file" / "out"), "--quiet"], capsys)
+    assert code == 2 and "a_file" in err and len(err.strip().splitlines()) == 1
+    code, _, err = _run_cli(["run", log, "--save", str(tmp_path / "a_file" / "x.rrd"), "--quiet"], capsys)
+    assert code == 2 and "cannot create the folder" in err and len(err.strip().splitlines()) == 1
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        if not os.access(locked, os.W_OK):
+            code, _, err = _run_cli(["run", log, "--save", str(locked / "x.rrd"), "--quiet"], capsys)
+            assert code == 2 and "not writable" in err and len(err.strip().splitlines()) == 1
+    finally:
+        locked.chmod(0o700)
+
+
+def test_unknown_labeller_and_bad_override(lidar_dir: Path, capsys) -> None:
+    log = str(lidar_dir / "velodyne_vlp16_indoor.mcap")
+    code, _, err = _run_cli(["run", log, "--labeller", "magic", "--quiet"], capsys)
+    assert code == 2 and "unknown labeller 'magic'" in err
+    code, _, err = _run_cli(["run", log, "--set", "map.voxel_size_m=fast", "--quiet"], capsys)
+    assert code == 2 and "map.voxel_size_m" in err
+
+
+def test_a_scan_registration_cannot_align_is_marked_and_the_run_goes_on(lidar_dir: Path) -> None:
+    import sources
+
+    scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
+    scans.insert(2, scans[1].select(np.arange(30)))  # a scan of 30 points in the middle of the log
+    for k, s in enumerate(scans):
+        s.seq = k
+    cfg = load_config(None, ['label.labeller="region-growing"'])
+    result = run_stream(scans, cfg, [], RunInfo("test", "mcap"), notice=lambda _t: None)
+    assert result.summary.scans == 5 and result.summary.registration_failures == [2]
+
+
+# ----------------------------------------------------------------------------------- Ctrl-C
+
+
+def _interrupted(scans: list[Scan], after: int) -> Iterator[Scan]:
+    for k, s in enumerate(scans):
+        if k == after:
+            raise KeyboardInterrupt
+        yield s
+
+
+def test_interrupt_leaves_a_valid_recording_of_what_was_processed(lidar_dir: Path, tmp_path: Path) -> None:
+    import sources
+
+    scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
+    out = tmp_path / "stopped.rrd"
+    cfg = load_config(None, ['label.labeller="region-growing"'])
+    sink = RerunSink(out, False, None, cfg.rerun, False)
+    result = run_stream(_interrupted(scans, 3), cfg, [sink], RunInfo(str(out), "mcap"), notice=lambda _t: None)
+    assert result.summary.interrupted and result.summary.scans == 3
+    rec = read_rrd(out)
+    assert len(rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)) == 3
+    assert rec.under(L.MAP)
+    assert rrd_verify(out).returncode == 0
+
+
+def test_ctrl_c_on_the_command_line(tmp_path: Path) -> None:
+    log = write_truth_log(tmp_path / "long.mcap", scans=300, points=3000)
+    out = tmp_path / "ctrlc.rrd"
+    cmd = [sys.executable, "-m", "pipeline", "run", str(log), "--save", str(out), "--labeller", "region-growing"]
+    env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 200_000):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "interrupted after" in stdout and "rerun " in stdout
+    scans = int(stdout.split("interrupted after ")[1].split()[0])
+    assert 0 < scans < 300
+    rec = read_rrd(out)
+    assert len(rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)) == scans
+    assert rrd_verify(out).returncode == 0
