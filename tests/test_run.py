@@ -155,7 +155,7 @@ def test_eval_refuses_a_log_without_truth(lidar_dir: Path, capsys) -> None:
 def test_no_usable_scans(tmp_path: Path, capsys) -> None:
     tiny = [{"x": np.ones(5, np.float32), "y": np.ones(5, np.float32), "z": np.ones(5, np.float32)}] * 3
     log = write_ros2_mcap(tmp_path / "tiny.mcap", tiny)
-    code, stdout, err = _run_cli(["run", str(log), "--labeller", "region-growing", "--quiet"], capsys)
+    code, _, err = _run_cli(["run", str(log), "--labeller", "region-growing", "--quiet"], capsys)
     assert code == 2 and "no usable scans (3 scans, none with 100 points or more)" in err
     assert len(err.strip().splitlines()) == 1
 
@@ -167,7 +167,8 @@ def test_existing_and_unwritable_outputs_are_refused_before_work(lidar_dir: Path
     code, _, err = _run_cli(["run", log, "--save", str(out), "--quiet"], capsys)
     assert code == 2 and "already exists (pass --force to overwrite)" in err
     assert out.read_bytes() == b"keep me"
-    code, _, _ = _run_cli(["run", log, "--save", str(out), "--force", "--quiet", "--labeller", "region-growing"], capsys)
+    args = ["run", log, "--save", str(out), "--force", "--quiet", "--labeller", "region-growing"]
+    code, _, _ = _run_cli(args, capsys)
     assert code == 0 and out.stat().st_size > 1000
     # A folder that cannot be made (a file is in the way) and, unless we are root, one that cannot be written.
     (tmp_path / "a_file").write_text("")
