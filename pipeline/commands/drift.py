@@ -1,0 +1,55 @@
+"""`aftershock drift INPUT`: story slabs of a structure and how far each drifted and tilted against the lowest."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from pipeline.config import load_config
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def drift(
+        input: Path = typer.Argument(..., help="Point cloud of a structure (PLY/PCD, e.g. an exported map)."),
+        gravity: str | None = typer.Option(
+            None, help="Where 'up' comes from: frame-z (the input's z) or ground-plane (the lowest slab)."
+        ),
+        config: Path | None = typer.Option(None, help="Config file (TOML/JSON)."),
+        set_: list[str] | None = typer.Option(None, "--set", help="Override a setting: drift.bin_m=0.05"),
+        as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (nothing else on stdout)."),
+    ) -> None:
+        """Drift (mm) and tilt (degrees) of every story slab against the lowest one."""
+        from pipeline.cloud_io import read_cloud
+        from pipeline.damage.drift import Gravity, measure_drift
+        from pipeline.damage.report import story_json
+        from pipeline.errors import InputError
+
+        sets = list(set_ or [])
+        if gravity is not None:
+            if gravity not in {g.value for g in Gravity}:
+                raise InputError(f"--gravity {gravity!r}: choose frame-z or ground-plane")
+            sets.append(f"drift.gravity={gravity}")
+        cfg = load_config(config, sets)
+        cloud = read_cloud(input)
+        result = measure_drift(cloud.points, cfg.drift)
+        out = {
+            "input": str(input),
+            "gravity": result.gravity,
+            "stories": [story_json(s) for s in result.stories],
+            "notes": result.notes,
+        }
+        if as_json:
+            print(json.dumps(out, indent=2))
+            return
+        print(f"{len(result.stories)} slab plane(s); up = {result.gravity}")
+        for s in result.stories:
+            print(
+                f"  story {s.index} at z {s.height_m:.3f} m: drift x {s.drift_x_mm:+.1f} y {s.drift_y_mm:+.1f} "
+                f"total {s.drift_mm:.1f} mm; tilt x {s.tilt_x_deg:+.3f} y {s.tilt_y_deg:+.3f} "
+                f"total {s.tilt_deg:.3f} deg ({s.num_points} points)"
+            )
+        for note in result.notes:
+            print(f"  note: {note}")
