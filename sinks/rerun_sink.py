@@ -44,6 +44,7 @@ from sinks.base import Sink, Stage
 TRAJECTORY_PIECE: Final = 500  # poses per trajectory strip; older strips are never re-logged
 DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)
 SPAWN_PORT: Final = 9876
+FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
 
 SCAN_RADIUS: Final = rr.Radius.ui_points(1.5)
 MAP_RADIUS_OF_VOXEL: Final = 0.2  # map points drawn with a world-space radius of this fraction of the voxel
@@ -87,12 +88,14 @@ class EmbeddingColors:
         self.scale: np.ndarray | None = None  # (3,)
 
     def __call__(self, embeddings: np.ndarray) -> np.ndarray:
-        e = np.asarray(embeddings, dtype=np.float64)
+        e = np.asarray(embeddings, dtype=np.float32)
         if self.axes is None or self.axes.shape[0] != e.shape[1]:
-            self._fit(e)
+            self._fit(e[:: max(1, len(e) // FIT_SAMPLE)].astype(np.float64))
         assert self.mean is not None and self.axes is not None and self.scale is not None
-        proj = (e - self.mean) @ self.axes / self.scale
-        return (np.clip(0.5 + 0.5 * proj, 0.0, 1.0) * 255).astype(np.uint8)
+        # 0.5 + 0.5 * (e - mean) @ axes / scale, folded into one affine map
+        gain = (0.5 * self.axes / self.scale).astype(np.float32)
+        offset = (0.5 - self.mean @ (0.5 * self.axes / self.scale)).astype(np.float32)
+        return (np.clip(e @ gain + offset, 0.0, 1.0) * 255).astype(np.uint8)
 
     def _fit(self, e: np.ndarray) -> None:
         d = e.shape[1]
@@ -128,6 +131,12 @@ def _scan_colors(scan: Scan) -> np.ndarray | None:
     if scan.intensity is not None:
         return ramp_colors(scan.intensity)
     return None
+
+
+def _instance_colors(ids: np.ndarray) -> np.ndarray:
+    """`instance_colors` computed once per distinct id (a scan has many points but few instances)."""
+    unique, inverse = np.unique(ids, return_inverse=True)
+    return instance_colors(unique)[inverse.reshape(-1)]
 
 
 def _tile_name(ix: int, iy: int) -> str:
@@ -227,7 +236,7 @@ class RerunSink(Sink):
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         static = self._scan is None
-        colors = instance_colors(cloud.instance_ids) if cloud.instance_ids is not None else cloud.colors
+        colors = _instance_colors(cloud.instance_ids) if cloud.instance_ids is not None else cloud.colors
         extra = [rr.AnyValues(instance_id=cloud.instance_ids)] if cloud.instance_ids is not None else []
         self.rec.log(
             L.REFINED,
@@ -355,7 +364,7 @@ class RerunSink(Sink):
         inst = frame.labels.instance_ids[idx]
         self.rec.log(
             L.INSTANCES,
-            rr.Points3D(pts, colors=instance_colors(inst), class_ids=frame.labels.class_ids[idx], radii=SCAN_RADIUS),
+            rr.Points3D(pts, colors=_instance_colors(inst), class_ids=frame.labels.class_ids[idx], radii=SCAN_RADIUS),
             rr.AnyValues(instance_id=inst),
         )
         for m in frame.merges:
@@ -390,15 +399,16 @@ class RerunSink(Sink):
         self._map_bounds = (pts.min(axis=0), pts.max(axis=0))
 
         cell = np.floor(pts[:, :2] / self.cfg.map_tile_m).astype(np.int64)
-        tile_ids, inverse = np.unique(cell, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        order = np.argsort(inverse, kind="stable")
-        starts = np.searchsorted(inverse[order], np.arange(len(tile_ids)))
-        counts = np.bincount(inverse, minlength=len(tile_ids))
-        hashes = np.add.reduceat(_content_hash(pts, cls, inst)[order], starts) if n else np.zeros(0, np.uint64)
+        packed = (cell[:, 0] << 32) + cell[:, 1]  # one sortable key per tile (tile indices stay far below 2^31)
+        order = np.argsort(packed, kind="stable")
+        sorted_keys = packed[order]
+        starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
+        counts = np.diff(np.r_[starts, n])
+        tiles = cell[order[starts]]
+        hashes = np.add.reduceat(_content_hash(pts, cls, inst)[order], starts)
         radius = MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m
         seen: set[str] = set()
-        for t, (ix, iy) in enumerate(tile_ids):
+        for t, (ix, iy) in enumerate(tiles):
             name = f"{L.MAP}/{_tile_name(int(ix), int(iy))}"
             seen.add(name)
             signature = (int(counts[t]), int(hashes[t]))
