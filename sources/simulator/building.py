@@ -733,7 +733,7 @@ def _furnish(plan: _Plan, room: Room, b: MeshBuilder, rng: np.random.Generator, 
         for side in (-1, 1):
             for _ in range(int(rng.integers(0, 3))):
                 local = np.array([rng.uniform(-hx + 0.3, hx - 0.3), side * (hy + rng.uniform(0.2, 0.35)), 0])
-                cx, cy = (*(rot @ local)[:2], x, y)
+                cx, cy = (rot @ local)[:2] + np.array([x, y])
                 chair_yaw = yaw + (0 if side < 0 else np.pi) + rng.normal(0, 0.3)
                 put(fur.chair(rng), float(cx), float(cy), float(chair_yaw), check=False)
         for _ in range(rng.poisson(1.2 * spec.clutter)):  # things on the table
@@ -747,7 +747,7 @@ def _furnish(plan: _Plan, room: Room, b: MeshBuilder, rng: np.random.Generator, 
                     0,
                 ]
             )
-            cx, cy = (*(rot @ local)[:2], x, y)
+            cx, cy = (rot @ local)[:2] + np.array([x, y])
             zt = max(p.center[2] + p.size[2] / 2 for p in piece.parts)
             fur.place(
                 b,

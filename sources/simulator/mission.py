@@ -22,6 +22,7 @@ START_NS: Final = 1_700_000_000_000_000_000  # a fixed epoch, so the same seed g
 DEFAULT_SCANS: Final = 100
 LIDAR_FRAME: Final = "lidar"
 POINTS_TOPIC: Final = "/lidar/points"
+QUANTUM_INV: Final = 512.0  # 2 mm: the VLP-16 packet range resolution
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,8 +33,16 @@ class MissionPlan:
     scans: int
 
     @staticmethod
-    def make(profile: SensorProfile, speed: float, scans: int | None, duration_s: float | None) -> MissionPlan:
-        period = profile.spacing_m / speed if profile.spacing_m else 1.0 / profile.rate_hz
+    def make(
+        profile: SensorProfile,
+        speed: float,
+        scans: int | None,
+        duration_s: float | None,
+        spacing_m: float | None = None,
+    ) -> MissionPlan:
+        """Sweeps at the sensor rate, or one every `spacing_m` (else the profile's spacing) of travel."""
+        spacing = spacing_m or profile.spacing_m
+        period = spacing / speed if spacing else 1.0 / profile.rate_hz
         period = max(period, profile.sweep_s)  # a new sweep cannot start before the last one ended
         if scans is None:
             scans = DEFAULT_SCANS if duration_s is None else int(np.floor(duration_s / period + 1e-9))
@@ -55,12 +64,13 @@ class Mission:
         duration_s: float | None = None,
         story: int = 0,
         speed: float = WALK_SPEED_MPS,
+        spacing_m: float | None = None,
         start_ns: int = START_NS,
     ) -> None:
         if not 0 <= story < scene.num_stories:
             raise ValueError(f"story {story} is not in this building (0..{scene.num_stories - 1})")
         self.scene, self.profile, self.seed, self.story = scene, profile, int(seed), story
-        self.plan = MissionPlan.make(profile, speed, scans, duration_s)
+        self.plan = MissionPlan.make(profile, speed, scans, duration_s, spacing_m)
         self.start_ns = int(start_ns)
         self.trajectory: Trajectory = plan_tour(scene, story, self.seed, speed)
         self._dirs = profile.directions()  # (C, B, 3)
@@ -94,10 +104,13 @@ class Mission:
         rng_m = t[idx]
         if prof.range_noise_m > 0:
             rng_m = rng_m + rng.normal(0, prof.range_noise_m, len(idx))
-        points = self._dirs.reshape(-1, 3)[idx] * rng_m[:, None]
+        # Coordinates on a 1/512 m grid (float32-exact, far below the range noise): what a driver's
+        # fixed-point packets give, and it lets zstd find the redundancy that real logs have.
+        points = np.round(self._dirs.reshape(-1, 3)[idx] * rng_m[:, None] * QUANTUM_INV) / QUANTUM_INV
         surface = origins[idx] + world_dirs[idx] * t[idx, None]
         tri_hit = tri[idx]
         colors, intensity, _ = self.scene.look(tri_hit, surface, cos[idx], rng)
+        intensity = np.round(intensity)  # integer reflectivity 0..255, as the VLP-16 reports it
         times_ns = np.round(self._times.reshape(-1)[idx] * 1e9)
         stamp_ns = self.start_ns + round(t0 * 1e9)
         return Scan(

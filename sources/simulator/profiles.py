@@ -107,6 +107,18 @@ PROFILES: Final[dict[str, SensorProfile]] = {
         firing_interval_s=2.304e-6,
         description="Velodyne VLP-16: 16 beams over ±15°, 0.2° azimuth at 10 Hz, ~100 m, ±3 cm",
     ),
+    "vlp16-20hz": SensorProfile(
+        name="vlp16-20hz",
+        elevations_deg=_VLP16_ELEVATIONS,
+        azimuth_step_deg=0.4,
+        rate_hz=20.0,
+        min_range_m=0.4,
+        max_range_m=100.0,
+        range_noise_m=0.015,
+        dropout=0.02,
+        firing_interval_s=2.304e-6,
+        description="Velodyne VLP-16 in its 20 Hz mode: 0.4° azimuth, half the points of a sweep",
+    ),
     "dense": SensorProfile(
         name="dense",
         elevations_deg=tuple(float(e) for e in range(-45, 81)),

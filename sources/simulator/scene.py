@@ -8,13 +8,16 @@ the whole building that missions are matched against.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
 from pipeline.types import LabelledCloud
 from sources.simulator.damage import CrackTruth, LevelMotion, crack_segments, distance_to_polylines
 from sources.simulator.meshes import LabelledMesh
+
+if TYPE_CHECKING:
+    from sources.simulator.raycast import Raycaster
 
 STATION_HEIGHT_M: Final = 1.6  # tripod height of the static-scan stations above the floor
 STATIC_RANGE_NOISE_M: Final = 0.002  # a terrestrial scanner is millimetre-accurate
@@ -91,7 +94,7 @@ class Scene:
     ceiling_z: tuple[float, ...]
     light: float = 1.0  # overall brightness of this building's lighting
     _waves: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
-    _raycaster: object | None = None
+    _raycaster: Raycaster | None = None
     _crack_segs: tuple[np.ndarray, ...] | None = None  # segments and a crack-bearing instance table
 
     @property
@@ -103,7 +106,7 @@ class Scene:
         return self.truth.levels[story].matrix()
 
     @property
-    def raycaster(self):
+    def raycaster(self) -> Raycaster:
         if self._raycaster is None:
             from sources.simulator.raycast import Raycaster
 
@@ -122,7 +125,7 @@ class Scene:
         # mottling: a few plane waves of different lengths (float32 is plenty here and twice as fast)
         arg = points.astype(np.float32) @ self._waves[:, :3].T.astype(np.float32) + self._waves[:, 3].astype(np.float32)
         tex = np.sin(arg).mean(axis=1) if len(self._waves) else np.zeros(n, np.float32)
-        rgb = base * (1.0 + m.texture[tri] * 2.0 * tex)[:, None] + rng.standard_normal((n, 3), np.float32) * 2.5
+        rgb = base * (1.0 + m.texture[tri] * 2.0 * tex)[:, None] + rng.standard_normal((n, 3), np.float32) * 1.5
         refl = m.reflectivity[tri].copy()
         crack = self.crack_mask(points, m.instance_ids[tri])
         if crack.any():
@@ -203,9 +206,10 @@ class Scene:
             raise ValueError("spacing must be positive")
         rng = np.random.default_rng([self.seed, seed, 7])
         stations = self.static_stations()
-        # Angular step so that surfaces ~6 m away are sampled at half the spacing; capped per station.
-        step = spacing_m / 12.0
-        n_rays = int(min(4 * np.pi / step**2, 2_500_000))
+        # Angular step so that surfaces ~6 m away are sampled at the spacing (nearer ones more densely,
+        # farther ones are nearer to another station); capped per station.
+        step = spacing_m / 6.0
+        n_rays = int(min(4 * np.pi / step**2, 1_000_000))
         dirs = fibonacci_sphere(n_rays)
         keep_pts, keep_tri, keep_cos = [], [], []
         for st in stations:
