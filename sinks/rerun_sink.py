@@ -26,8 +26,10 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
 
 from __future__ import annotations
 
+import socket
 from pathlib import Path
 from typing import Final
+from urllib.parse import urlsplit
 
 import numpy as np
 import rerun as rr
@@ -112,6 +114,18 @@ class EmbeddingColors:
         self.scale = np.maximum(2.0 * spread, 1e-6)
 
 
+def _listening(url: str, timeout_s: float = 2.0) -> bool:
+    """Whether something accepts TCP connections at the host and port of a Rerun gRPC URL (True if no port)."""
+    parts = urlsplit(url.replace("rerun+", "", 1))
+    if parts.hostname is None or parts.port is None:
+        return True
+    try:
+        with socket.create_connection((parts.hostname, parts.port), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
 def _datetime(ns: int) -> np.datetime64:
     return np.datetime64(int(ns), "ns")
 
@@ -178,11 +192,14 @@ class RerunSink(Sink):
         self._sinks: list[rr.FileSink | rr.GrpcSink] = []
         if self.path is not None:
             self._sinks.append(rr.FileSink(self.path))
+        self._viewer_url = connect or f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"
         if connect is not None:
             try:
                 self._sinks.append(rr.GrpcSink(connect))
             except (ValueError, RuntimeError) as exc:
                 raise OutputError(f"not a Rerun gRPC URL ({exc})", connect) from None
+            if not _listening(connect):
+                raise OutputError("no Rerun viewer is listening there (start one with `rerun`)", connect)
         self.rec = rr.RecordingStream(application_id)
         rr.set_log_time_enabled(False, recording=self.rec)  # wall-clock time of logging says nothing here
         self._closed = False
@@ -294,13 +311,16 @@ class RerunSink(Sink):
         if summary.interrupted:
             text += " (interrupted)"
         self.rec.log(f"{L.LOG}/summary", rr.TextLog(text, level="INFO"))
-        self.rec.flush()
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
-        self.rec.flush()
+        try:
+            self.rec.flush()
+        except RuntimeError as exc:  # a viewer that went away or never came: the file is still finished
+            self.rec.disconnect()
+            raise OutputError(f"the Rerun viewer could not be reached ({exc})", self._viewer_url) from None
         self.rec.disconnect()
 
     # ------------------------------------------------------------------------------------------ layers

@@ -197,8 +197,10 @@ def test_outputs_are_checked_before_any_work(tmp_path: Path) -> None:
 
 
 def test_bad_connect_url_is_an_output_error() -> None:
-    with pytest.raises(OutputError):
+    with pytest.raises(OutputError, match="not a Rerun gRPC URL"):
         RerunSink(None, False, "http://localhost:9876", RerunConfig())
+    with pytest.raises(OutputError, match="no Rerun viewer is listening"):
+        RerunSink(None, False, f"rerun+http://127.0.0.1:{_free_port()}/proxy", RerunConfig())
 
 
 def _free_port() -> int:
