@@ -29,7 +29,8 @@ from pipeline.types import Frame, Scan
 
 log = logging.getLogger(__name__)
 
-MIN_POINTS: Final = 100  # fewer points in range than this and ICP has nothing to hold on to
+MIN_POINTS: Final = 100
+DESKEW_STEPS: Final = 1000  # fewer points in range than this and ICP has nothing to hold on to
 INDOOR_GUESS_RANGE_M: Final = 15.0  # 90 % of the first scan's returns nearer than this -> indoor
 
 
@@ -108,12 +109,19 @@ def se3_exp_apply(twist: np.ndarray, scales: np.ndarray, points: np.ndarray) -> 
     c = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
     p = np.asarray(points, np.float64)
     # Rodrigues for R p and V v without building N matrices: w x p and w x (w x p).
-    wp = np.cross(ws, p)
-    rp = p + a[:, None] * wp + b[:, None] * np.cross(ws, wp)
+    wp = _cross(ws, p)
     vs = s[:, None] * v[None, :]
-    wv = np.cross(ws, vs)
-    trans = vs + b[:, None] * wv + c[:, None] * np.cross(ws, wv)
-    return rp + trans
+    wv = _cross(ws, vs)
+    return p + vs + a[:, None] * wp + b[:, None] * (_cross(ws, wp) + wv) + c[:, None] * _cross(ws, wv)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross spends most of its time reshaping)."""
+    out = np.empty_like(b)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
 
 
 def se3_exp(twist: np.ndarray) -> np.ndarray:
@@ -125,13 +133,24 @@ def se3_exp(twist: np.ndarray) -> np.ndarray:
 
 
 def deskew(points: np.ndarray, times: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """KISS-ICP's deskew: point at normalised time s moves by exp((s - 1) log(delta)) into the end-of-sweep frame."""
+    """KISS-ICP's deskew: point at normalised time s moves by exp((s - 1) log(delta)) into the end-of-sweep frame.
+
+    The motion is evaluated at DESKEW_STEPS + 1 instants across the sweep and each point takes the nearest
+    (at 10 Hz that is within 0.05 ms of its own time: under 0.1 mm at walking speed), which is four times
+    cheaper than a transform per point."""
     t = np.asarray(times, np.float64)
     t0, t1 = float(t.min()), float(t.max())
     if not t1 > t0:
         return points
-    s = (t - t0) / (t1 - t0)
-    return se3_exp_apply(se3_log(delta), s - 1.0, points)
+    step = np.rint((t - t0) * (DESKEW_STEPS / (t1 - t0))).astype(np.intp)
+    s = np.arange(DESKEW_STEPS + 1) / DESKEW_STEPS - 1.0
+    twist = se3_log(delta)
+    # Transforms at every instant: the images of the origin and of the three unit vectors.
+    basis = np.repeat(np.vstack([np.zeros(3), np.eye(3)])[None], len(s), axis=0).reshape(-1, 3)
+    moved = se3_exp_apply(twist, np.repeat(s, 4), basis).reshape(len(s), 4, 3)
+    trans = moved[:, 0]
+    rot = (moved[:, 1:] - trans[:, None, :]).transpose(0, 2, 1)  # columns are the rotated unit vectors
+    return np.einsum("nij,nj->ni", rot[step], points) + trans[step]
 
 
 def transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
