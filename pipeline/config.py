@@ -130,7 +130,7 @@ class CrackConfig(_Section):
 class DriftConfig(_Section):
     bin_m: float = 0.05
     density_ratio: float = 1.5  # a slab bin has 50 % more points than the median of its neighbourhood
-    neighbourhood_bins: int = 10
+    neighbourhood_bins: int = 24  # 1.2 m: a slab tilted 1° across a 20 m building spans 0.35 m
     ransac_threshold_m: float = 0.02
     ransac_iterations: int = 1000
     gravity: str = "frame-z"  # frame-z | ground-plane

@@ -120,11 +120,39 @@ def tilt_angles(normal: np.ndarray) -> tuple[float, float, float]:
     return float(about_x), float(about_y), float(total)
 
 
-def footprint_centre(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """Horizontal (x, y) centre of a slab: the middle of its extent, robust to a few stray points."""
-    lo = np.percentile(points[:, :2], 0.1, axis=0)
-    hi = np.percentile(points[:, :2], 99.9, axis=0)
+def footprint_centre(points: np.ndarray) -> np.ndarray:
+    """Horizontal (x, y) centre of a slab surface: the middle of its extent, trimmed of a few stray points."""
+    lo = np.percentile(points[:, :2], 0.2, axis=0)
+    hi = np.percentile(points[:, :2], 99.8, axis=0)
     return (lo + hi) / 2
+
+
+@dataclass(slots=True)
+class _Surface:
+    plane: np.ndarray
+    centre: np.ndarray
+    points: int
+    height: float
+
+
+def _surfaces(band: np.ndarray, cfg: DriftConfig, rng: np.random.Generator) -> list[_Surface]:
+    """The horizontal surfaces of one slab band, lowest first: its underside (a ceiling) and/or its top (a
+    floor), when both were seen."""
+    out: list[_Surface] = []
+    rest = band
+    for _ in range(2):
+        if len(rest) < _MIN_SLAB_POINTS:
+            break
+        plane, inliers = ransac_plane(rest, cfg.ransac_threshold_m, cfg.ransac_iterations, rng)
+        count = int(inliers.sum())
+        if count < _MIN_SLAB_POINTS or abs(plane[2]) < np.cos(np.deg2rad(cfg.max_slab_tilt_deg)):
+            break
+        if out and count < 0.2 * out[0].points:
+            break
+        on = rest[inliers]
+        out.append(_Surface(plane, footprint_centre(on), count, float(np.median(on[:, 2]))))
+        rest = rest[~inliers]
+    return sorted(out, key=lambda s: s.height)
 
 
 def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
@@ -146,39 +174,42 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
             rot = _level(pts, plane[:3])
             pts = pts @ rot.T
     bands = slab_bands(pts[:, 2], cfg.bin_m, cfg.density_ratio, cfg.neighbourhood_bins, cfg.slab_merge_m)
-    planes: list[tuple[np.ndarray, np.ndarray, int, float]] = []
+    slabs: list[list[_Surface]] = []
     for lo, hi in bands:  # one iteration per slab
         band = pts[(pts[:, 2] >= lo - cfg.bin_m) & (pts[:, 2] < hi + cfg.bin_m)]
-        if len(band) < _MIN_SLAB_POINTS:
-            continue
-        plane, inliers = ransac_plane(band, cfg.ransac_threshold_m, cfg.ransac_iterations, rng)
-        if inliers.sum() < _MIN_SLAB_POINTS or abs(plane[2]) < np.cos(np.deg2rad(cfg.max_slab_tilt_deg)):
-            continue
-        on = band[inliers]
-        planes.append((plane, footprint_centre(on, plane), int(inliers.sum()), float(np.median(on[:, 2]))))
-    if len(planes) < 2:
-        notes.append(f"{len(planes)} story slab(s) found: drift needs at least two")
+        surfaces = _surfaces(band, cfg, rng) if len(band) >= _MIN_SLAB_POINTS else []
+        if surfaces:
+            slabs.append(surfaces)
+    if len(slabs) < 2:
+        notes.append(f"{len(slabs)} story slab(s) found: drift needs at least two")
     stories: list[Story] = []
-    if not planes:
+    if not slabs:
         return DriftResult(stories, gravity.value, bands, notes)
-    base_plane, base_centre, _, _ = planes[0]
-    to_base = _level(pts, base_plane[:3])  # tilts against the lowest plane
-    for i, (plane, centre, count, height) in enumerate(planes):
-        tx, ty, total = tilt_angles(to_base @ plane[:3])
-        drift = (centre - base_centre) * 1000.0
-        world_plane = np.append(rot.T @ plane[:3], plane[3])  # back to the input frame
+    # A story runs from the top surface (floor) of one slab to the underside (ceiling) of the next; its drift
+    # is how far the ceiling's footprint moved against the floor's. Drifts add up from the lowest slab.
+    base = slabs[0][-1]
+    to_base = _level(pts, base.plane[:3])  # tilts against the lowest plane
+    drift = np.zeros(2)
+    for i, surfaces in enumerate(slabs):
+        if i > 0:
+            drift = drift + (surfaces[0].centre - slabs[i - 1][-1].centre) * 1000.0
+        main = max(surfaces, key=lambda s: s.points)
+        tx, ty, total = tilt_angles(to_base @ main.plane[:3])
+        normal = rot.T @ main.plane[:3]  # back to the input frame
         stories.append(
             Story(
                 index=i,
-                height_m=height,
-                plane=world_plane,
+                height_m=float((rot.T @ np.array([0.0, 0.0, main.height]))[2])
+                if gravity is Gravity.FRAME_Z
+                else main.height,
+                plane=np.append(normal, main.plane[3]),
                 drift_x_mm=float(drift[0]),
                 drift_y_mm=float(drift[1]),
                 drift_mm=float(np.hypot(*drift)),
                 tilt_x_deg=tx,
                 tilt_y_deg=ty,
                 tilt_deg=total,
-                num_points=count,
+                num_points=sum(s.points for s in surfaces),
             )
         )
     return DriftResult(stories, gravity.value, bands, notes)

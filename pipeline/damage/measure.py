@@ -154,7 +154,10 @@ def measure_cracks(
 
 @dataclass(frozen=True, slots=True)
 class Scores:
-    """Point-wise precision/recall/F1 and the size errors of the main crack against a truth mask."""
+    """Point-wise precision/recall/F1 and size errors of the main (largest) true crack, two ways:
+    `length_error_m`/`width_error_m` as the study measured them (the detected part of the main true crack,
+    i.e. main truth ∩ prediction, against the whole main true crack), and `instance_*` (stricter: the
+    whole predicted crack instance that overlaps the main true crack most, false positives included)."""
 
     precision: float
     recall: float
@@ -165,32 +168,35 @@ class Scores:
     true_width_m: float
     found_length_m: float
     found_width_m: float
+    instance_length_error_m: float
+    instance_width_error_m: float
 
 
 def score(points: np.ndarray, predicted: np.ndarray, truth: np.ndarray, link_m: float, min_points: int) -> Scores:
-    """Precision, recall and F1 over the points of the evaluated cloud; length and width errors of the main
-    (largest) true crack against the predicted crack instance that overlaps it most (its whole instance,
-    false positives included, not only the overlap — a stricter test than the original's)."""
+    """Precision, recall and F1 over the points of the evaluated cloud, and the size errors (see `Scores`)."""
     predicted, truth = np.asarray(predicted, bool), np.asarray(truth, bool)
     tp = float(np.sum(predicted & truth))
     precision = tp / max(float(predicted.sum()), 1.0)
     recall = tp / max(float(truth.sum()), 1.0)
     f1 = 2 * precision * recall / max(precision + recall, _EPS)
     nan = float("nan")
-    true_ids = np.zeros(len(points), np.int64)
-    true_ids[truth] = components(points[truth], link_m, 1) if truth.any() else 0
     if not truth.any():
-        return Scores(precision, recall, f1, nan, nan, nan, nan, nan, nan)
+        return Scores(precision, recall, f1, nan, nan, nan, nan, nan, nan, nan, nan)
+    true_ids = np.zeros(len(points), np.int64)
+    true_ids[truth] = components(points[truth], link_m, 1)
     main = true_ids == 1
     true_len, true_wid, *_ = crack_size(points[main])
+    found = main & predicted
+    if found.sum() < 3:
+        return Scores(precision, recall, f1, nan, nan, true_len, true_wid, nan, nan, nan, nan)
+    found_len, found_wid, *_ = crack_size(points[found])
     pred_ids = np.zeros(len(points), np.int64)
-    if predicted.any():
-        pred_ids[predicted] = components(points[predicted], link_m, min_points)
+    pred_ids[predicted] = components(points[predicted], link_m, min_points)
     overlap = np.bincount(pred_ids[main], minlength=int(pred_ids.max(initial=0)) + 1)
     overlap[0] = 0
-    if overlap.max(initial=0) == 0:
-        return Scores(precision, recall, f1, nan, nan, true_len, true_wid, nan, nan)
-    found_len, found_wid, *_ = crack_size(points[pred_ids == int(np.argmax(overlap))])
+    inst_len = inst_wid = nan
+    if overlap.max(initial=0) > 0:
+        inst_len, inst_wid, *_ = crack_size(points[pred_ids == int(np.argmax(overlap))])
     return Scores(
         precision,
         recall,
@@ -201,4 +207,6 @@ def score(points: np.ndarray, predicted: np.ndarray, truth: np.ndarray, link_m: 
         true_wid,
         found_len,
         found_wid,
+        abs(inst_len - true_len),
+        abs(inst_wid - true_wid),
     )

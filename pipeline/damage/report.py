@@ -74,6 +74,8 @@ class CrackResult:
                 "true_width_m": _num(s.true_width_m),
                 "found_length_m": _num(s.found_length_m),
                 "found_width_m": _num(s.found_width_m),
+                "instance_length_error_m": _num(s.instance_length_error_m),
+                "instance_width_error_m": _num(s.instance_width_error_m),
             }
         out |= {
             "cracks": [crack_json(c) for c in self.cracks],
