@@ -7,6 +7,7 @@ static = scene.sample_static_cloud(spacing_m=0.05, seed=0)
 """
 
 from sources.simulator.building import build_scene
+from sources.simulator.cracks import ELEMENTS, cracked_element
 from sources.simulator.damage import CrackTruth
 from sources.simulator.families import FAMILIES, FamilySpec
 from sources.simulator.mission import Mission
@@ -14,6 +15,7 @@ from sources.simulator.profiles import PROFILES, SensorProfile, get_profile
 from sources.simulator.scene import Scene, SceneTruth, StoryTruth
 
 __all__ = [
+    "ELEMENTS",
     "FAMILIES",
     "PROFILES",
     "CrackTruth",
@@ -24,5 +26,6 @@ __all__ = [
     "SensorProfile",
     "StoryTruth",
     "build_scene",
+    "cracked_element",
     "get_profile",
 ]

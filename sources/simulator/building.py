@@ -26,6 +26,7 @@ from sources.simulator.damage import (
 )
 from sources.simulator.families import FamilySpec, family_spec
 from sources.simulator.meshes import CONCRETE, GLASS, METAL, PLASTER, TILE, WOOD, MeshBuilder, rotation_xyz, rotation_z
+from sources.simulator.raycast import Raycaster
 from sources.simulator.scene import Room, Scene, SceneTruth, StoryTruth, plane_of
 
 OUTER_WALL_M: Final = 0.25
@@ -85,6 +86,8 @@ class _Plan:
     walls: list[_Wall] = field(default_factory=list)
     rooms: list[Room] = field(default_factory=list)
     door_zones: dict[int, list[tuple[float, float, float, float]]] = field(default_factory=dict)
+    floor_instances: dict[int, int] = field(default_factory=dict)  # level -> instance of its floor half
+    ceiling_instances: dict[int, int] = field(default_factory=dict)
 
     @property
     def width(self) -> float:
@@ -114,7 +117,8 @@ def build_scene(family: str, seed: int) -> Scene:
     levels_z = [*plan.floor_z, plan.ceiling_z[-1] + plan.slab_t]
     motions = level_motions(r_damage, levels_z, center, plan.story_h, spec.drift_ratio, spec.tilt_deg)
     mesh.vertices = deform(mesh.vertices, v_level, v_span, motions, plan.floor_z, plan.ceiling_z)
-    cracks = _cracks(plan, r_crack, cracks_on, motions) if spec.cracks[1] > 0 else []
+    caster = Raycaster(mesh)
+    cracks = _cracks(plan, r_crack, cracks_on, motions, caster) if spec.cracks[1] > 0 else []
     stories = []
     for k in range(len(plan.story_h)):
         lo, hi = motions[k], motions[k + 1]
@@ -131,6 +135,8 @@ def build_scene(family: str, seed: int) -> Scene:
                 inter_story_drift_y_mm=round(hi.drift_y_mm - lo.drift_y_mm, 3),
                 floor_plane=plane_of(lo.matrix(), plan.floor_z[k]),
                 ceiling_plane=plane_of(hi.matrix(), plan.ceiling_z[k]),
+                floor_instance_id=plan.floor_instances[k],
+                ceiling_instance_id=plan.ceiling_instances[k + 1],
             )
         )
     truth = SceneTruth(
@@ -155,6 +161,7 @@ def build_scene(family: str, seed: int) -> Scene:
         ceiling_z=tuple(plan.ceiling_z),
         light=float(r_look.uniform(0.85, 1.1)),
         _waves=waves,
+        _raycaster=caster,
     )
 
 
@@ -294,6 +301,7 @@ def _structure(
         top = plan.floor_z[j] if j < n_st else plan.ceiling_z[-1] + t
         floor_inst = b.new_instance(C.FLOOR)
         ceil_inst = b.new_instance(C.CEILING) if j > 0 else 0
+        plan.floor_instances[j], plan.ceiling_instances[j] = floor_inst, ceil_inst
         floor_col = spec.floor_colors[int(rng.integers(len(spec.floor_colors)))]
         ceil_col = spec.ceiling_colors[int(rng.integers(len(spec.ceiling_colors)))]
         floor_mat = TILE if spec.plastered else CONCRETE
@@ -822,6 +830,7 @@ def _cracks(
     rng: np.random.Generator,
     candidates: list[tuple[int, int, np.ndarray, np.ndarray, int, bool]],
     motions: list,
+    caster: Raycaster,
 ) -> list[CrackTruth]:
     """Cracks on columns (mostly), walls and ceilings, laid out undamaged then moved with their element."""
     spec = plan.spec
@@ -872,18 +881,20 @@ def _cracks(
                 # keep the crack on its face: it may not be longer than the face is wide unless near-vertical
                 length = min(length, (2 * half_u) / max(abs(np.cos(angle)), 1e-3) * 0.95)
         crack = make_crack(rng, inst, cls, face_c, normal, u, v, length, angle, width, depth, CRACK_COLOR)
-        out.append(_move_crack(crack, level, span, motions, plan))
+        out.append(_move_crack(crack, level, span, motions, plan, caster))
     return out
 
 
-def _move_crack(crack: CrackTruth, level: int, span: bool, motions: list, plan: _Plan) -> CrackTruth:
+def _move_crack(crack: CrackTruth, level: int, span: bool, motions: list, plan: _Plan, caster: Raycaster) -> CrackTruth:
+    """The crack moved with its element: deformed like its level or story, then laid back onto the face
+    (the mesh interpolates a sheared face linearly between its corners, the deformation is bilinear)."""
     n = len(crack.polyline)
     lv = np.full(n + 1, level)
     sp = np.full(n + 1, span)
     pts = np.r_[crack.polyline, [crack.polyline.mean(0) + crack.normal]]
     moved = deform(pts, lv, sp, motions, plan.floor_z, plan.ceiling_z)
-    poly = moved[:-1]
-    nrm = moved[-1] - poly.mean(0)
+    nrm = moved[-1] - moved[:-1].mean(0)
+    poly, _ = caster.closest_points(moved[:-1])
     direction = poly[-1] - poly[0]
     seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
     return CrackTruth(

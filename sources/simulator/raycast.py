@@ -42,3 +42,9 @@ class Raycaster:
         """Unsigned distance (N,) from points to the nearest surface."""
         q = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
         return self._scene.compute_distance(q, nthreads=self.threads).numpy().astype(np.float64)
+
+    def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest surface points (N, 3) and their triangle ids (N,)."""
+        q = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
+        ans = self._scene.compute_closest_points(q, nthreads=self.threads)
+        return ans["points"].numpy().astype(np.float64), ans["primitive_ids"].numpy().astype(np.int64)

@@ -104,6 +104,8 @@ def truth_to_dict(truth: SceneTruth) -> dict:
                 "inter_story_drift_y_mm": s.inter_story_drift_y_mm,
                 "floor_plane": arr(s.floor_plane),
                 "ceiling_plane": arr(s.ceiling_plane),
+                "floor_instance_id": s.floor_instance_id,
+                "ceiling_instance_id": s.ceiling_instance_id,
             }
             for s in truth.stories
         ],

@@ -43,6 +43,8 @@ class StoryTruth:
     inter_story_drift_y_mm: float
     floor_plane: np.ndarray  # (4,) a, b, c, d of the damaged floor surface, unit normal up
     ceiling_plane: np.ndarray  # (4,) of the damaged ceiling surface, unit normal up
+    floor_instance_id: int = 0  # the floor's instance (a collapsed panel is an instance of its own)
+    ceiling_instance_id: int = 0
 
     @property
     def drift_mm(self) -> float:
