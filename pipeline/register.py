@@ -153,6 +153,11 @@ def deskew(points: np.ndarray, times: np.ndarray, delta: np.ndarray) -> np.ndarr
     return np.einsum("nij,nj->ni", rot[step], points) + trans[step]
 
 
+def sweep_motion(delta: np.ndarray, fraction: float) -> np.ndarray:
+    """The part `fraction` of a rigid motion (along its screw axis)."""
+    return delta if fraction == 1.0 else se3_exp(fraction * se3_log(delta))
+
+
 def transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Points (N, 3) moved by a 4 x 4 pose. einsum, not `@`: a BLAS call for a 3-wide product spends more
     time waking threads than computing on a busy machine."""
@@ -181,14 +186,17 @@ class Registrar:
         kiss_cfg.mapping.max_points_per_voxel = cfg.max_points_per_voxel
         self.kiss = KissICP(kiss_cfg)
         self.frames = 0
+        self._last_stamp_ns: int | None = None
+        self._fraction = 0.0
 
     def register(self, frame: Frame) -> Frame:
         scan = frame.scan
         delta = self.kiss.last_delta.copy()
         prediction = self.kiss.last_pose @ delta
+        self._fraction = self._sweep_fraction(scan)
         points = scan.points
-        if self.cfg.deskew and scan.times is not None and len(scan):
-            points = deskew(points, scan.times, delta)
+        if self._fraction > 0:
+            points = deskew(points, scan.times, sweep_motion(delta, self._fraction))
         ranges = norms(points)
         usable = int(((ranges > self.settings.min_range_m) & (ranges < self.settings.max_range_m)).sum())
         if usable < MIN_POINTS:
@@ -211,20 +219,32 @@ class Registrar:
         frame.world_points = transform(frame.pose, points)
         frame.stamp_pose = self._stamp_pose(frame)
         self.frames += 1
+        self._last_stamp_ns = scan.stamp_ns
         if not frame.registration_ok:
             log.warning("scan %d: %s", scan.seq, frame.registration_note)
         return frame
 
+    def _sweep_fraction(self, scan: Scan) -> float:
+        """Share of the motion between the previous scan and this one that happened during this sweep
+        (0 = no deskew). KISS-ICP takes it as 1, true for back-to-back sweeps; a log that keeps one scan in N,
+        or one every so many metres, has sweeps shorter than the time between scans."""
+        if not self.cfg.deskew or scan.times is None or not len(scan):
+            return 0.0
+        span = float(scan.times.max() - scan.times.min())
+        if not span > 0:
+            return 0.0
+        if self._last_stamp_ns is None or scan.stamp_ns <= self._last_stamp_ns:
+            return 1.0
+        return min(1.0, span / ((scan.stamp_ns - self._last_stamp_ns) * 1e-9))
+
     def _stamp_pose(self, frame: Frame) -> np.ndarray:
         """The pose at the scan stamp: the end-of-sweep pose moved back along this sweep's motion."""
         times = frame.scan.times
-        if not self.cfg.deskew or times is None or not len(times):
+        if self._fraction <= 0 or times is None:
             return frame.pose.copy()
         t0, t1 = float(times.min()), float(times.max())
-        if not t1 > t0:
-            return frame.pose.copy()
         s = (0.0 - t0) / (t1 - t0)
-        return frame.pose @ se3_exp((s - 1.0) * se3_log(self.kiss.last_delta))
+        return frame.pose @ se3_exp((s - 1.0) * se3_log(sweep_motion(self.kiss.last_delta, self._fraction)))
 
     def _skip(self, frame: Frame, prediction: np.ndarray, note: str) -> None:
         self.kiss.last_pose = prediction

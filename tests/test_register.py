@@ -98,16 +98,16 @@ def test_registration_follows_a_known_motion_and_flags_a_bad_scan() -> None:
     assert all(f.timings_ms["register"] > 0 for f in frames)
 
 
-def _swept_scan(world: np.ndarray, k: int, speed: float, sweep_s: float = 0.1) -> Scan:
-    """Scan k of a sensor moving along x at `speed`: each point is seen from where the sensor was when the
-    rotating beam passed its azimuth; the stamp is the start of the sweep."""
-    start = np.array([speed * sweep_s * k, 0.0, 0.0])
+def _swept_scan(world: np.ndarray, k: int, speed: float, sweep_s: float = 0.1, every_s: float = 0.1) -> Scan:
+    """Scan k (one every `every_s`) of a sensor moving along x at `speed`: each point is seen from where the
+    sensor was when the rotating beam passed its azimuth; the stamp is the start of the sweep."""
+    start = np.array([speed * every_s * k, 0.0, 0.0])
     rel = world - start
     near = np.linalg.norm(rel, axis=1) < 25
     rel, pts = rel[near], world[near]
     times = (np.arctan2(rel[:, 1], rel[:, 0]) + np.pi) / (2 * np.pi) * sweep_s
     local = pts - (start + np.outer(times, [speed, 0.0, 0.0]))
-    return Scan(stamp_ns=int(k * sweep_s * 1e9), points=local, seq=k, times=times, gt_pose=_pose([0, 0, 0], start))
+    return Scan(stamp_ns=int(k * every_s * 1e9), points=local, seq=k, times=times, gt_pose=_pose([0, 0, 0], start))
 
 
 def test_deskew_with_the_true_motion_undoes_the_sweep() -> None:
@@ -130,6 +130,17 @@ def test_deskewed_stamp_poses_follow_the_motion() -> None:
     step = np.linalg.inv(frames[-1].stamp_pose) @ frames[-1].pose
     assert step[0, 3] == pytest.approx(speed * 0.1, abs=0.02)
     # KISS-ICP cannot deskew its first scans (no motion known yet) and keeps them in its map, hence cm.
+    est = np.array([f.stamp_pose for f in frames])
+    assert trajectory_error(est, np.array([s.gt_pose for s in scans])).ate_rmse_m < 0.04
+
+
+def test_sweeps_shorter_than_the_time_between_scans_are_deskewed_by_their_share_of_the_motion() -> None:
+    world = _scene(np.random.default_rng(3))[::2]
+    scans = [_swept_scan(world, k, speed=1.0, every_s=0.3) for k in range(10)]  # a scan kept every 0.3 m
+    reg = Registrar(RegisterConfig(), Environment.INDOOR)
+    frames = [reg.register(Frame(s)) for s in scans]
+    step = np.linalg.inv(frames[-1].stamp_pose) @ frames[-1].pose
+    assert step[0, 3] == pytest.approx(0.1, abs=0.02)  # one 0.1 s sweep at 1 m/s, not the 0.3 m between scans
     est = np.array([f.stamp_pose for f in frames])
     assert trajectory_error(est, np.array([s.gt_pose for s in scans])).ate_rmse_m < 0.04
 
