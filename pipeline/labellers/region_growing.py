@@ -4,7 +4,8 @@ voxel map ("normal + colour region growing" in METHODS.md).
 Each new voxel gets a normal and a curvature from PCA over the stored points of the 5 x 5 x 5 voxels
 around it (points of earlier scans included). The clustering stage then links it to each neighbouring
 voxel whose normal is within `cluster.normal_angle_deg` and whose colour is within `cluster.color_distance`
-(RGB in [0, 1]); linked voxels share an instance.
+(RGB in [0, 1]); linked voxels share an instance. A voxel too isolated for a normal (fewer than 3 stored
+points around it) links on colour alone.
 
 Region growing finds objects but not what they are, so classes come from plain geometric rules on the
 voxel's normal, curvature and height against the sensor (nothing is learned):
@@ -68,7 +69,10 @@ class RegionGrowingLabeller:
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         na, nb = vmap.normals[rows_a], vmap.normals[rows_b]
-        ok = np.abs(np.einsum("ij,ij->i", na, nb)) >= self.min_cos
+        dot = np.abs(np.einsum("ij,ij->i", na, nb))
+        # A voxel too isolated for a normal joins its neighbour's region on colour alone.
+        unknown = (np.abs(na).sum(axis=1) == 0) | (np.abs(nb).sum(axis=1) == 0)
+        ok = (dot >= self.min_cos) | unknown
         ca = vmap.colors[rows_a].astype(np.float32) / 255.0
         cb = vmap.colors[rows_b].astype(np.float32) / 255.0
         return ok & (norms(ca - cb) < self.max_color)
