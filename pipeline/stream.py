@@ -47,7 +47,7 @@ class StreamResult:
     seqs: np.ndarray  # (F,) scan sequence numbers of the frames
     stamps_ns: np.ndarray  # (F,)
     poses: np.ndarray  # (F, 4, 4) estimated poses at the scan stamps
-    true_poses: np.ndarray | None  # (F, 4, 4) where every frame had one
+    true_poses: np.ndarray | None  # (F, 4, 4), NaN for frames without one; None when (almost) none had one
     trajectory: TrajectoryError | None
     notes: list[str] = field(default_factory=list)
 
@@ -219,11 +219,13 @@ def _run(
             _close_all(sinks)
 
     pose_arr = np.array(poses).reshape(-1, 4, 4)
+    has_truth = np.array([p is not None for p in true_poses], bool)
     truth = None
     trajectory = None
-    if true_poses and all(p is not None for p in true_poses):
-        truth = np.array(true_poses).reshape(-1, 4, 4)
-        trajectory = trajectory_error(pose_arr, truth)
+    if has_truth.sum() >= 2:  # frames whose true pose the log could not give are left out
+        truth = np.full((len(poses), 4, 4), np.nan)
+        truth[has_truth] = np.array([p for p in true_poses if p is not None])
+        trajectory = trajectory_error(pose_arr[has_truth], truth[has_truth])
     return StreamResult(
         summary=summary,
         vmap=vmap,
