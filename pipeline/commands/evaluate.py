@@ -113,12 +113,12 @@ def print_report(rep: dict[str, Any]) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    from pipeline.commands.run import build_config, open_scans
+    from pipeline.commands.run import LABELLER_HELP, build_config, open_scans
 
     @app.command("eval")
     def evaluate(
         source: str = typer.Argument(..., help="A log with ground truth (class_id/instance_id fields), or sim://…"),
-        labeller: str | None = typer.Option(None, "--labeller", help="mcpnet (default) or region-growing."),
+        labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
         config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
         overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
         topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),

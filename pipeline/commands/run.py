@@ -17,11 +17,15 @@ import typer
 
 from pipeline.config import Config, load_config
 from pipeline.errors import InputError
+from pipeline.label import FALLBACK_LABELLER, LABELLERS
 from pipeline.progress import enabled
 from pipeline.stream import StreamResult, run_stream
 from pipeline.types import RunInfo, Scan
 from sinks.base import Sink
 
+LABELLER_HELP: Final = (
+    f"One of: {', '.join(LABELLERS)}. Default mcpnet; the {FALLBACK_LABELLER} baseline if its weights are missing."
+)
 SAMPLE: Final = Path(__file__).resolve().parents[2] / "recordings" / "sample.mcap"
 
 
@@ -167,7 +171,7 @@ def register(app: typer.Typer) -> None:
         connect: str | None = typer.Option(None, "--connect", help="Stream to a running viewer (rerun+http://…)."),
         mcap_out: Path | None = typer.Option(None, "--mcap-out", help="Write labelled clouds and poses as MCAP."),
         export: Path | None = typer.Option(None, "--export", help="Folder for map.ply, poses and summary.json."),
-        labeller: str | None = typer.Option(None, "--labeller", help="mcpnet (default) or region-growing."),
+        labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
         config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
         overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
         topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),
