@@ -85,10 +85,12 @@ def _one_class_svm(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detecti
 
 
 def _lof(x: np.ndarray, fit: np.ndarray, seed: int, k: int) -> Detection:
+    """LOF over all points (not a sample: a point scored against a sample that holds it would be its own
+    nearest neighbour). Five neighbours, as in the study."""
     from sklearn.neighbors import LocalOutlierFactor
 
-    lof = LocalOutlierFactor(n_neighbors=5, novelty=True).fit(fit)
-    return Detection(-lof.decision_function(x), 0.0)
+    lof = LocalOutlierFactor(n_neighbors=5).fit(x)
+    return Detection(-lof.negative_outlier_factor_, -lof.offset_)
 
 
 def _smallest_cluster(labels: np.ndarray, k: int) -> Detection:

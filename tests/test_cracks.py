@@ -1,0 +1,192 @@
+"""Cracks: exact minimum-area rectangles, crack instances and their sizes, features and detectors, the
+`cracks` command on the real damaged columns and slab, and bad input (sparse clouds, wrong masks)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.cli import main
+from pipeline.cloud_io import read_cloud, write_cloud
+from pipeline.config import CrackConfig
+from pipeline.damage.detectors import Detector, detect
+from pipeline.damage.features import FeatureSet, compute_features
+from pipeline.damage.measure import measure_cracks, min_area_rectangle
+from pipeline.damage.report import find_cracks
+from pipeline.types import LabelledCloud
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 17.0, 45.0, 90.0, 133.0])
+def test_min_area_rectangle_is_exact_at_any_angle(angle_deg: float) -> None:
+    rng = np.random.default_rng(0)
+    uv = np.vstack([rng.uniform([-0.6, -0.02], [0.6, 0.02], (500, 2)), [[-0.6, -0.02], [0.6, 0.02], [0.6, -0.02]]])
+    a = np.deg2rad(angle_deg)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    rect = min_area_rectangle(uv @ rot.T + [3.0, -1.0])
+    assert rect.length == pytest.approx(1.2, abs=1e-9)
+    assert rect.width == pytest.approx(0.04, abs=1e-9)
+    assert abs(abs(rect.axis @ rot[:, 0]) - 1) < 1e-9
+    assert np.allclose(rect.center, [3.0, -1.0], atol=1e-9)
+
+
+def test_min_area_rectangle_degenerate() -> None:
+    line = np.c_[np.linspace(0, 1, 5), np.linspace(0, 1, 5)]
+    assert min_area_rectangle(line).length == pytest.approx(np.sqrt(2))
+    assert min_area_rectangle(line).width == 0.0
+    assert min_area_rectangle(np.zeros((1, 2))).length == 0.0
+
+
+def _plane_with_cracks(spacing: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+    """A 1 x 1 m wall in an arbitrary orientation with two straight cracks: 0.5 m x 10 mm and 0.3 m x 4 mm."""
+    u, v = np.meshgrid(np.arange(0, 1, spacing), np.arange(0, 1, spacing), indexing="ij")
+    uv = np.c_[u.ravel(), v.ravel()]
+    c1 = (np.abs(uv[:, 1] - 0.3) <= 0.005) & (uv[:, 0] >= 0.2) & (uv[:, 0] <= 0.7)
+    c2 = (np.abs(uv[:, 0] - 0.8) <= 0.002) & (uv[:, 1] >= 0.5) & (uv[:, 1] <= 0.8)
+    q, _ = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))
+    pts = np.c_[uv, np.zeros(len(uv))] @ q.T + [10.0, 5.0, 2.0]
+    return pts, c1 | c2
+
+
+def test_measure_cracks_on_a_rotated_wall() -> None:
+    pts, mask = _plane_with_cracks()
+    cracks, ids = measure_cracks(pts, mask, link_m=0.01, min_points=20, severe_width_m=0.0032, spacing_m=0.002)
+    assert len(cracks) == 2
+    assert set(np.unique(ids[mask])) == {1, 2}
+    big, small = cracks
+    assert big.length_m == pytest.approx(0.5, abs=0.004) and big.width_m == pytest.approx(0.01, abs=0.003)
+    assert small.length_m == pytest.approx(0.3, abs=0.004) and small.width_m == pytest.approx(0.004, abs=0.003)
+    assert big.severe
+    assert abs(np.linalg.norm(big.normal) - 1) < 1e-9
+
+
+def test_width_below_spacing_is_clamped_and_flagged() -> None:
+    pts = np.c_[np.linspace(0, 0.5, 200), np.zeros(200), np.zeros(200)]  # a one-point-wide crack
+    cracks, _ = measure_cracks(pts, np.ones(200, bool), 0.01, 20, 0.0032, spacing_m=0.005)
+    assert cracks[0].width_m == pytest.approx(0.005) and not cracks[0].width_resolved
+
+
+def _patch(n: int = 4000, seed: int = 0) -> LabelledCloud:
+    rng = np.random.default_rng(seed)
+    pts = np.c_[rng.uniform(0, 0.5, (n, 2)), rng.normal(0, 0.0005, n)]
+    colors = np.full((n, 3), 200, np.uint8)
+    dark = np.abs(pts[:, 0] - 0.25) < 0.01
+    colors[dark] = 90
+    return LabelledCloud(pts, colors, rng.normal(100, 5, n).astype(np.float32))
+
+
+@pytest.mark.parametrize("features", list(FeatureSet))
+def test_every_feature_set(features: FeatureSet) -> None:
+    cloud = _patch()
+    x = compute_features(cloud, features, CrackConfig())
+    assert x.shape[0] == len(cloud) and x.dtype == np.float32 and np.isfinite(x).all()
+    if features is FeatureSet.RGB:
+        assert x.min() >= -0.5 and x.max() <= 0.5  # the one colour range everywhere
+
+
+def test_crackembed_is_independent_of_batch_mates() -> None:
+    from models.crackembed import NEIGHBOURS, load_model
+
+    model = load_model()
+    rng = np.random.default_rng(0)
+    nb = torch.from_numpy(rng.normal(size=(8, NEIGHBOURS, 7)).astype(np.float32))
+    own = torch.from_numpy(rng.normal(size=(8, 3)).astype(np.float32))
+    with torch.no_grad():
+        together = model(nb, own)
+        alone = model(nb[:1], own[:1])
+    assert torch.allclose(together[:1], alone, atol=1e-6)
+    assert torch.allclose(together.norm(dim=1), torch.ones(8), atol=1e-5)
+
+
+@pytest.mark.parametrize("detector", list(Detector))
+def test_every_detector_flags_planted_outliers(detector: Detector) -> None:
+    """Anomaly detectors find scattered outliers; the clustering baselines find a small separate cluster."""
+    rng = np.random.default_rng(0)
+    clustering = detector in {Detector.KMEANS, Detector.GMM, Detector.MEAN_SHIFT}
+    if clustering:
+        odd = rng.normal(6, 0.3, (200, 2))
+    elif detector is Detector.LOCAL_OUTLIER_FACTOR:  # LOF: isolated points beside a denser region
+        angle, radius = rng.uniform(0, 2 * np.pi, 12), rng.uniform(4.0, 6.0, 12)
+        odd = np.c_[radius * np.cos(angle), radius * np.sin(angle)]
+    else:
+        odd = rng.uniform(4, 9, (200, 2)) * rng.choice([-1, 1], (200, 2))
+    x = np.vstack([rng.normal(0, 1, (1800, 2)), odd])
+    truth = np.r_[np.zeros(1800, bool), np.ones(len(odd), bool)]
+    mask = detect(x, detector, seed=0, clusters=2).mask
+    recall = (mask & truth).sum() / truth.sum()
+    precision = (mask & truth).sum() / max(mask.sum(), 1)
+    assert recall >= {Detector.ONE_CLASS_SVM: 0.7, Detector.LOCAL_OUTLIER_FACTOR: 0.6}.get(detector, 0.9), recall
+    assert precision >= 0.3, precision
+
+
+def test_find_cracks_on_a_synthetic_wall() -> None:
+    pts, mask = _plane_with_cracks(0.002)
+    colors = np.where(mask[:, None], 70, 210).astype(np.uint8).repeat(3, axis=1)
+    # No smoothing: the default 2 cm smoothing suits the wide damage zones of the real columns and blurs
+    # cracks a few millimetres wide (measured F1 ~0.35 here with it; see tests/bench_cracks.py).
+    result = find_cracks(LabelledCloud(pts, colors), CrackConfig(smooth_cell_m=0.0), mask, resolution_m=0.001)
+    assert result.scores is not None and result.scores.f1 > 0.9
+    assert len(result.cracks) == 2
+    assert result.resolution_m == 0.001
+
+
+@pytest.fixture(scope="module")
+def crack_files(crack_dir: Path) -> dict[str, tuple[Path, Path]]:
+    return {n: (crack_dir / f"{n}.ply", crack_dir / f"{n}_mask.npy") for n in ("column1", "column2", "slab2")}
+
+
+# Measured with the shipped settings (shade + isolation forest + 2 cm smoothing): 0.756 / 0.685 / 0.704;
+# the original method published 0.55 / 0.67 / about 0.75. The bounds keep a small margin for library drift.
+F1_AT_LEAST = {"column1": 0.73, "column2": 0.66, "slab2": 0.68}
+
+
+@pytest.mark.parametrize("name", ["column1", "column2", "slab2"])
+def test_cracks_command_on_real_elements(
+    name: str, crack_files: dict[str, tuple[Path, Path]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    ply, mask = crack_files[name]
+    assert main(["cracks", str(ply), "--truth", str(mask), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) >= {"precision", "recall", "f1", "length_error_m", "width_error_m", "cracks"}
+    assert out["f1"] >= F1_AT_LEAST[name]
+    assert out["resolution_m"] == (0.01 if name == "slab2" else 0.001)
+    assert out["cracks"] and all({"length_m", "width_m", "position"} <= set(c) for c in out["cracks"])
+    assert out["timings_s"]["features"] + out["timings_s"]["detect"] < 10
+
+
+def test_mask_of_the_wrong_length_is_an_error(
+    crack_files: dict[str, tuple[Path, Path]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["cracks", str(crack_files["slab2"][0]), "--truth", str(crack_files["column1"][1])]) == 2
+    err = capsys.readouterr().err
+    assert "mask has shape (47804,) but the cloud has 29221 points" in err and "Traceback" not in err
+
+
+def test_too_sparse_says_so(crack_files: dict[str, tuple[Path, Path]], capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["cracks", str(crack_files["slab2"][0]), "--resolution", "0.05"]) == 2
+    assert "too sparse for crack measurement" in capsys.readouterr().err
+
+
+def test_box_and_report_file(
+    crack_files: dict[str, tuple[Path, Path]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    ply, mask = crack_files["column1"]
+    cloud = read_cloud(ply)
+    lo, hi = cloud.points.min(axis=0), cloud.points.max(axis=0)
+    box = ",".join(f"{v:.3f}" for v in [*lo, *(lo + (hi - lo) * [1, 1, 0.5])])
+    report = tmp_path / "r.json"
+    assert main(["cracks", str(ply), "--box", box, "--truth", str(mask), "--report", str(report)]) == 0
+    assert "precision" in capsys.readouterr().out
+    assert json.loads(report.read_text())["points"] > 0
+    assert main(["cracks", str(ply), "--box", box, "--report", str(report)]) == 2  # exists, no --force
+    assert main(["cracks", str(ply), "--box", "1,2,3"]) == 2
+
+
+def test_pcd_input_without_colour_needs_a_geometric_feature(tmp_path: Path) -> None:
+    pts, _ = _plane_with_cracks(0.004)
+    path = write_cloud(tmp_path / "c.ply", LabelledCloud(pts))
+    assert main(["cracks", str(path), "--features", "curvature", "--json"]) == 0
+    assert main(["cracks", str(path), "--features", "nonsense"]) == 2
