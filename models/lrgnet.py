@@ -1,0 +1,140 @@
+"""LRGNet: a learnable step of region growing.
+
+Two point branches (the region's inliers and its neighbours), each a shared MLP 13→64→64→64→128→512 with a
+max-pooled global feature; the two global features joined (1024) go back to every point together with the
+point's own 64-wide second-layer feature (1088) into a head 256→128→2: one head says which inliers to remove,
+the other which neighbours to add. No normalisation layers, so a point's output depends only on itself and
+the two pooled features; inference can therefore pool over a sample and then decide for every candidate.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+from typing import Any, Final
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from pipeline.errors import InputError
+
+BRANCH_WIDTHS: Final = (64, 64, 64, 128, 512)
+HEAD_WIDTHS: Final = (256, 128, 2)
+LOCAL_LAYER: Final = 1  # the per-point feature handed to the head: output of the second layer (64 wide)
+FORMAT: Final = "aftershock-lrgnet"
+FORMAT_VERSION: Final = 1
+REBUILD_HINT: Final = "rebuild it with `aftershock train lrgnet --force`"
+
+
+class Branch(nn.Module):
+    """Shared per-point MLP; returns the per-point 64-wide local feature and the max-pooled global one."""
+
+    def __init__(self, in_features: int) -> None:
+        super().__init__()
+        widths = (in_features, *BRANCH_WIDTHS)
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(widths))
+
+    def local(self, x: torch.Tensor) -> torch.Tensor:
+        """Only the per-point local feature (the first layers), for deciding on many points."""
+        for layer in self.layers[: LOCAL_LAYER + 1]:
+            x = F.relu(layer(x))
+        return x
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        local = x
+        for i, layer in enumerate(self.layers):
+            x = F.relu(layer(x))
+            if i == LOCAL_LAYER:
+                local = x
+        return local, x.max(dim=-2).values
+
+
+class Head(nn.Module):
+    """[global 1024 ; local 64] → 256 → 128 → 2. The first layer is applied as W_g·g + W_l·l (the same
+    product as on the joined vector) so the global part is computed once per region, not once per point."""
+
+    def __init__(self, global_width: int, local_width: int) -> None:
+        super().__init__()
+        widths = (global_width + local_width, *HEAD_WIDTHS)
+        self.global_width = global_width
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(widths))
+
+    def forward(self, global_feature: torch.Tensor, local: torch.Tensor) -> torch.Tensor:
+        first = self.layers[0]
+        g = F.linear(global_feature, first.weight[:, : self.global_width], first.bias)  # (B, 256)
+        x = F.relu(F.linear(local, first.weight[:, self.global_width :]) + g.unsqueeze(-2))
+        for layer in self.layers[1:-1]:
+            x = F.relu(layer(x))
+        return self.layers[-1](x)
+
+
+class LRGNet(nn.Module):
+    """Inputs (B, I, F) inliers and (B, J, F) neighbours; outputs remove logits (B, I, 2), add logits (B, J, 2)."""
+
+    def __init__(self, in_features: int = 13) -> None:
+        super().__init__()
+        self.in_features = in_features
+        self.inlier_branch = Branch(in_features)
+        self.neighbour_branch = Branch(in_features)
+        width = 2 * BRANCH_WIDTHS[-1]
+        self.remove_head = Head(width, BRANCH_WIDTHS[LOCAL_LAYER])
+        self.add_head = Head(width, BRANCH_WIDTHS[LOCAL_LAYER])
+
+    def encode(self, inliers: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
+        """The joined global feature (B, 1024) of a region's inlier and neighbour samples."""
+        _, gi = self.inlier_branch(inliers)
+        _, gn = self.neighbour_branch(neighbours)
+        return torch.cat([gi, gn], dim=-1)
+
+    def remove_logits(self, global_feature: torch.Tensor, inliers: torch.Tensor) -> torch.Tensor:
+        return self.remove_head(global_feature, self.inlier_branch.local(inliers))
+
+    def add_logits(self, global_feature: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
+        return self.add_head(global_feature, self.neighbour_branch.local(neighbours))
+
+    def forward(self, inliers: torch.Tensor, neighbours: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        li, gi = self.inlier_branch(inliers)
+        ln, gn = self.neighbour_branch(neighbours)
+        g = torch.cat([gi, gn], dim=-1)
+        return self.remove_head(g, li), self.add_head(g, ln)
+
+
+def num_parameters(net: nn.Module) -> int:
+    return sum(p.numel() for p in net.parameters())
+
+
+def save_weights(path: Path, net: LRGNet, settings: dict[str, Any], figures: dict[str, Any]) -> None:
+    """Weights with a header recording the settings they were trained for."""
+    header = {"format": FORMAT, "version": FORMAT_VERSION, "settings": settings, "figures": figures}
+    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
+    torch.save({"header": header, "state_dict": state}, path)
+
+
+def load_weights(path: str | Path, expected: dict[str, Any]) -> tuple[LRGNet, dict[str, Any]]:
+    """Load weights and check their header against the settings in use; a mismatch is an InputError that names
+    the file and how to rebuild it."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"LRGNet weights not found; {REBUILD_HINT}", p)
+    try:
+        blob = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for a damaged or foreign file
+        raise InputError(f"not readable LRGNet weights ({type(exc).__name__}); {REBUILD_HINT}", p) from None
+    header = blob.get("header") if isinstance(blob, dict) else None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise InputError(f"not an LRGNet weights file; {REBUILD_HINT}", p)
+    if header.get("version") != FORMAT_VERSION:
+        raise InputError(f"LRGNet weights format {header.get('version')} != {FORMAT_VERSION}; {REBUILD_HINT}", p)
+    settings = header.get("settings", {})
+    wrong = {k: (settings.get(k), v) for k, v in expected.items() if settings.get(k) != v}
+    if wrong:
+        detail = ", ".join(f"{k}={a!r} (expected {b!r})" for k, (a, b) in wrong.items())
+        raise InputError(f"LRGNet weights were trained for other settings: {detail}; {REBUILD_HINT}", p)
+    net = LRGNet(int(settings.get("features", 13)))
+    try:
+        net.load_state_dict(blob["state_dict"])
+    except (RuntimeError, KeyError) as exc:
+        raise InputError(f"LRGNet weights do not fit the network ({exc}); {REBUILD_HINT}", p) from None
+    net.eval()
+    return net, header

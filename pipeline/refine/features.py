@@ -1,0 +1,134 @@
+"""LRGNet's per-point features over a voxelised cloud, and their per-step normalisation.
+
+A cloud is reduced to one point per voxel (the centroid of its raw points); normals and curvature come from
+PCA over the raw points of the surrounding 3 x 3 x 3 voxels. The 13 features of a voxel are
+`[x, y, z, u, v, w, r, g, b, nx, ny, nz, curvature]`: xyz with z above the scene's floor (x, y are made
+relative to the region's median at each step), room-normalised xyz in [0, 1], colour in [0, 1], the unit
+normal and the curvature; at each step colour, normal and curvature are made relative to the region's median.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from pipeline.geometry import voxel_keys
+from pipeline.types import LabelledCloud
+
+NUM_FEATURES: Final = 13
+LOCAL_XY: Final = slice(0, 2)
+ROOM: Final = slice(3, 6)
+NORMALISED: Final = slice(6, 13)  # colour, normal, curvature: minus the region's median per step
+NORMAL: Final = slice(9, 12)
+
+
+def neighbour_offsets(reach: int) -> np.ndarray:
+    """Voxel offsets within `reach` voxels in every axis, the voxel itself excluded ((2r+1)^3 - 1, 3)."""
+    r = range(-reach, reach + 1)
+    return np.array([(i, j, k) for i in r for j in r for k in r if (i, j, k) != (0, 0, 0)], np.int64)
+
+
+@dataclass(slots=True)
+class VoxelCloud:
+    """A cloud reduced to voxels, with everything region growing needs."""
+
+    points: np.ndarray  # (M, 3) float64 voxel centroids
+    features: np.ndarray  # (M, 13) float32, before per-step normalisation
+    curvature: np.ndarray  # (M,) float32
+    adjacency: np.ndarray  # (M, K) int64 indices of the occupied neighbouring voxels, -1 where empty
+    voxel_of_point: np.ndarray  # (N,) int64 voxel index of every raw point
+    first_point: np.ndarray  # (M,) int64 index of the first raw point of every voxel (for its labels)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+def _neighbour_table(keys: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(M, K) indices of the occupied voxels at the given offsets from each voxel, -1 where empty."""
+    reach = int(np.abs(offsets).max())
+    lo = keys.min(axis=0) - reach
+    span = keys.max(axis=0) - lo + reach + 1
+    k = keys - lo
+
+    def code(a: np.ndarray) -> np.ndarray:
+        return (a[..., 0] * span[1] + a[..., 1]) * span[2] + a[..., 2]
+
+    codes = code(k)
+    order = np.argsort(codes, kind="stable")
+    sorted_codes = codes[order]
+    probe = code(k[:, None, :] + offsets[None, :, :])  # (M, K)
+    pos = np.searchsorted(sorted_codes, probe).clip(max=len(codes) - 1)
+    hit = sorted_codes[pos] == probe
+    return np.where(hit, order[pos], -1)
+
+
+def _pca_over_neighbourhood(
+    raw: np.ndarray, voxel_of_point: np.ndarray, adjacency: np.ndarray, m: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Normals (oriented to +z) and curvature = smallest eigenvalue / sum from the raw points of 27 voxels."""
+    centre = raw.mean(axis=0)
+    p = raw - centre  # conditioning: second moments about the scene centre
+    count = np.bincount(voxel_of_point, minlength=m).astype(np.float64)
+    first = np.stack([np.bincount(voxel_of_point, p[:, i], m) for i in range(3)], axis=1)
+    outer = np.stack([np.bincount(voxel_of_point, p[:, i] * p[:, j], m) for i in range(3) for j in range(3)], axis=1)
+    pad = np.vstack  # stats of "no voxel" (index -1 -> the appended zero row)
+    count_p, first_p, outer_p = pad([count[:, None], [[0.0]]]), pad([first, [[0.0] * 3]]), pad([outer, [[0.0] * 9]])
+    nb = np.concatenate([np.arange(m)[:, None], adjacency], axis=1)  # self + 26 = the 3 x 3 x 3 block
+    n = count_p[nb, 0].sum(axis=1)
+    s1 = first_p[nb].sum(axis=1)
+    s2 = outer_p[nb].sum(axis=1).reshape(m, 3, 3)
+    mean = s1 / n[:, None]
+    cov = s2 / n[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    evals, evecs = np.linalg.eigh(cov)
+    normals = evecs[:, :, 0]
+    normals[normals[:, 2] < 0] *= -1
+    total = evals.sum(axis=1)
+    curvature = np.where(total > 1e-12, evals[:, 0].clip(min=0) / np.where(total > 1e-12, total, 1), 0.0)
+    curvature[n < 3] = 1.0
+    return normals.astype(np.float32), curvature.astype(np.float32)
+
+
+def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None) -> VoxelCloud:
+    """One point per voxel with its 13 base features, its neighbourhood and the raw-point mapping.
+
+    Two voxels are neighbours when they lie within δ of each other in every axis, counted in whole voxels
+    (at least one): with δ = the voxel size, the 26 voxels touching a voxel. Measured between voxels rather than
+    between centroids, so that surfaces sampled at the voxel size stay connected."""
+    raw = cloud.points
+    keys = voxel_keys(raw, voxel_m)
+    uniq, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    m = len(uniq)
+    count = np.bincount(inverse, minlength=m).astype(np.float64)
+    centroid = np.stack([np.bincount(inverse, raw[:, i], m) for i in range(3)], axis=1) / count[:, None]
+    touching = _neighbour_table(uniq, neighbour_offsets(1))
+    normals, curvature = _pca_over_neighbourhood(raw, inverse, touching, m)
+    reach = max(1, round((delta_m if delta_m is not None else voxel_m) / voxel_m))
+    adjacency = touching if reach == 1 else _neighbour_table(uniq, neighbour_offsets(reach))
+    if cloud.colors is not None:
+        rgb = np.stack([np.bincount(inverse, cloud.colors[:, i].astype(np.float64), m) for i in range(3)], axis=1)
+        rgb = rgb / count[:, None] / 255.0
+    else:
+        rgb = np.zeros((m, 3))
+    lo, hi = centroid.min(axis=0), centroid.max(axis=0)
+    room = (centroid - lo) / np.where(hi - lo > 1e-9, hi - lo, 1.0)
+    xyz = centroid.copy()
+    xyz[:, 2] -= lo[2]
+    features = np.concatenate([xyz, room, rgb, normals, curvature[:, None]], axis=1).astype(np.float32)
+    return VoxelCloud(centroid, features, curvature, adjacency, inverse, first)
+
+
+def region_centre(features: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """The per-step reference of a region: median of x, y and of colour/normal/curvature, (9,) float32."""
+    f = features[region]
+    return np.concatenate([np.median(f[:, LOCAL_XY], axis=0), np.median(f[:, NORMALISED], axis=0)]).astype(np.float32)
+
+
+def step_features(features: np.ndarray, idx: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Features of the points `idx`, normalised by a region's reference from `region_centre`."""
+    f = features[idx].copy()
+    f[:, LOCAL_XY] -= centre[:2]
+    f[:, NORMALISED] -= centre[2:]
+    return f

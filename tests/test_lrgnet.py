@@ -1,0 +1,276 @@
+"""LRGNet: features, network, growth, small-segment absorption, determinism, the refine command, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from models.lrgnet import LRGNet, load_weights, num_parameters, save_weights
+from models.lrgnet_train import batch_tensors, make_samples, simulate_growth, voxel_truth
+from pipeline.cli import main
+from pipeline.cloud_io import write_cloud
+from pipeline.config import LRGNetConfig
+from pipeline.errors import InputError
+from pipeline.refine import baseline_cloud, refine_cloud, scores, weight_settings
+from pipeline.refine.baselines import Baseline
+from pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
+from pipeline.refine.grow import Grower
+from pipeline.types import LabelledCloud
+
+
+# ----------------------------------------------------------------------------- synthetic scenes
+def _plane(origin, u, v, spacing: float, rng: np.random.Generator) -> np.ndarray:
+    u, v = np.asarray(u, float), np.asarray(v, float)
+    nu, nv = max(2, int(np.linalg.norm(u) / spacing)), max(2, int(np.linalg.norm(v) / spacing))
+    a, b = np.meshgrid(np.linspace(0, 1, nu), np.linspace(0, 1, nv), indexing="ij")
+    pts = np.asarray(origin, float) + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v
+    return pts + rng.normal(0, 0.003, pts.shape)
+
+
+def _box(lo, hi, spacing: float, rng: np.random.Generator) -> np.ndarray:
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    ex, ey, ez = np.diag(hi - lo)
+    faces = [(lo, ex, ey), (lo + ez, ex, ey), (lo, ex, ez), (lo + ey, ex, ez), (lo, ey, ez), (lo + ex, ey, ez)]
+    return np.vstack([_plane(o, u, v, spacing, rng) for o, u, v in faces])
+
+
+def _cloud(parts: list[np.ndarray], rng: np.random.Generator) -> LabelledCloud:
+    pts = np.vstack(parts)
+    inst = np.concatenate([np.full(len(p), i + 1) for i, p in enumerate(parts)]).astype(np.uint32)
+    palette = rng.integers(40, 220, (len(parts) + 1, 3))
+    colors = np.clip(palette[inst] + rng.normal(0, 5, (len(pts), 3)), 0, 255).astype(np.uint8)
+    return LabelledCloud(pts, colors, None, np.full(len(pts), 12, np.uint16), inst)
+
+
+def small_room(seed: int = 0) -> LabelledCloud:
+    """A 3 x 2.5 x 1.5 m room (floor and two walls) with two boxes: ~3k voxels."""
+    rng = np.random.default_rng(seed)
+    parts = [
+        _plane((0, 0, 0), (3, 0, 0), (0, 2.5, 0), 0.05, rng),
+        _plane((0, 0, 0), (3, 0, 0), (0, 0, 1.5), 0.05, rng),
+        _plane((0, 0, 0), (0, 2.5, 0), (0, 0, 1.5), 0.05, rng),
+        _box((0.8, 0.8, 0.05), (1.4, 1.3, 0.7), 0.05, rng),
+        _box((2.0, 1.4, 0.05), (2.6, 2.1, 0.5), 0.05, rng),
+    ]
+    return _cloud(parts, rng)
+
+
+def apart_boxes(seed: int = 0) -> LabelledCloud:
+    """Two boxes 1 m apart and a 3-point fragment 0.25 m from the first: three connected components."""
+    rng = np.random.default_rng(seed)
+    parts = [
+        _box((0, 0, 0), (0.5, 0.5, 0.5), 0.05, rng),
+        _box((1.5, 0, 0), (2.0, 0.5, 0.5), 0.05, rng),
+        np.array([[0.75, 0.25, 0.25], [0.76, 0.26, 0.25], [0.77, 0.25, 0.26]]),
+    ]
+    return _cloud(parts, rng)
+
+
+def biased_net(add: float, remove: float = -20.0) -> LRGNet:
+    """A real LRGNet whose output layers are set by hand to always (or never) add / remove."""
+    torch.manual_seed(0)
+    net = LRGNet()
+    with torch.no_grad():
+        for head, bias in ((net.add_head, add), (net.remove_head, remove)):
+            last = head.layers[-1]
+            last.weight.zero_()
+            last.bias.copy_(torch.tensor([0.0, bias]))
+    return net.eval()
+
+
+@pytest.fixture(scope="module")
+def weights_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real (randomly initialised, seeded) weights file with a correct header."""
+    path = tmp_path_factory.mktemp("w") / "lrgnet.pt"
+    torch.manual_seed(0)
+    save_weights(path, LRGNet(), weight_settings(LRGNetConfig()), {})
+    return path
+
+
+# ----------------------------------------------------------------------------- features
+def test_features_shape_and_ranges() -> None:
+    cloud = small_room()
+    vc = voxelise(cloud, 0.1)
+    m = len(vc)
+    assert vc.features.shape == (m, NUM_FEATURES) and vc.features.dtype == np.float32
+    assert 1500 < m < len(cloud)
+    room = vc.features[:, 3:6]
+    assert room.min() >= 0 and room.max() <= 1 and np.allclose(room.max(axis=0), 1)
+    assert np.allclose(np.linalg.norm(vc.features[:, 9:12], axis=1), 1, atol=1e-4)
+    assert vc.features[:, 2].min() == pytest.approx(0, abs=1e-6)  # z above the floor
+    assert vc.voxel_of_point.shape == (len(cloud),) and vc.voxel_of_point.max() == m - 1
+    # Floor voxels away from walls and boxes: flat (curvature ~ 0) with normals up.
+    x, y = vc.points[:, 0], vc.points[:, 1]
+    floor = (cloud.instance_ids[vc.first_point] == 1) & (x > 1.6) & (x < 2.8) & (y > 0.3) & (y < 1.1)
+    assert floor.sum() > 50
+    assert np.median(vc.curvature[floor]) < 0.01
+    assert np.all(vc.features[floor, 11] > 0.99)
+    # Adjacency is symmetric: 26-neighbourhood of touching voxels.
+    a = vc.adjacency
+    i, k = np.nonzero(a >= 0)
+    assert np.all(np.any(a[a[i, k]] == i[:, None], axis=1))
+
+
+def test_step_normalisation_is_relative_to_region_median() -> None:
+    vc = voxelise(small_room(), 0.1)
+    region = np.arange(0, len(vc), 7)
+    centre = region_centre(vc.features, region)
+    f = step_features(vc.features, region, centre)
+    assert np.allclose(np.median(f[:, 0:2], axis=0), 0, atol=1e-5)
+    assert np.allclose(np.median(f[:, 6:13], axis=0), 0, atol=1e-5)
+    assert np.array_equal(f[:, 2:6], vc.features[region, 2:6])  # z and room-normalised xyz untouched
+
+
+# ----------------------------------------------------------------------------- network
+def test_network_shapes_parameters_and_batch_independence() -> None:
+    net = LRGNet().eval()
+    assert num_parameters(net) == 791_044  # ~0.79 M as in the study
+    torch.manual_seed(1)
+    xi, xn = torch.randn(3, 512, 13), torch.randn(3, 300, 13)
+    with torch.no_grad():
+        rm, add = net(xi, xn)
+        assert rm.shape == (3, 512, 2) and add.shape == (3, 300, 2)
+        alone = net(xi[1:2], xn[1:2])
+        assert torch.allclose(alone[0][0], rm[1], atol=1e-5) and torch.allclose(alone[1][0], add[1], atol=1e-5)
+        # The split first head layer equals the layer on the joined 1088-wide vector.
+        g = net.encode(xi, xn)
+        local = torch.relu(net.add_head.layers[0].weight.new_zeros(1))  # keep type checkers quiet
+        local, _ = net.neighbour_branch(xn)
+        joined = torch.cat([g[:, None, :].expand(-1, local.shape[1], -1), local], dim=-1)
+        x = torch.relu(net.add_head.layers[0](joined))
+        x = torch.relu(net.add_head.layers[1](x))
+        assert torch.allclose(net.add_head.layers[2](x), add, atol=1e-4)
+
+
+# ----------------------------------------------------------------------------- growth
+def test_growth_covers_a_connected_object_and_stops_without_neighbours() -> None:
+    cloud = apart_boxes()
+    cfg = LRGNetConfig(min_segment_points=1)
+    truth = cloud.instance_ids
+    first = refine_cloud(cloud, cfg, net=biased_net(add=20.0))
+    box = int(first.instance_ids[truth == 2][0])
+    res = refine_cloud(cloud, cfg, net=biased_net(add=20.0), record_object=box)
+    assert np.array_equal(res.instance_ids, first.instance_ids)
+    # Always adding: each connected component becomes exactly one object.
+    for t in (1, 2, 3):
+        assert len(np.unique(res.instance_ids[truth == t])) == 1
+    assert len(np.unique(res.instance_ids)) == 3
+    assert res.steps is not None and len(res.steps) == res.steps_per_object[box - 1] > 1
+    inl, nb = res.steps[-1]
+    assert len(np.intersect1d(inl, nb)) == 0 and len(nb) > 0
+    assert np.all(truth[inl] == 2) and np.all(truth[nb] == 2)
+
+
+def test_growth_stops_when_nothing_is_added_and_at_the_step_cap() -> None:
+    vc = voxelise(apart_boxes(), 0.1)
+    never = Grower(vc, biased_net(add=-20.0), LRGNetConfig()).grow(0)
+    assert never.steps == 1 and len(never.region) == 1
+    capped = Grower(vc, biased_net(add=20.0), LRGNetConfig(max_steps=2)).grow(0)
+    assert capped.steps == 2 and 1 < len(capped.region) < len(vc) / 2
+
+
+def test_growth_stops_when_the_region_does_not_expand_for_two_steps() -> None:
+    """The stopping rule alone, with the decisions scripted: grow, then swap one point for another twice."""
+
+    class Scripted(Grower):
+        def probabilities(self, region: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            self.network_steps += 1
+            rm = np.zeros(len(region), np.float32)
+            add = np.zeros(len(candidates), np.float32)
+            add[0] = 1.0
+            if self.network_steps > 1:
+                rm[-1] = 1.0  # one out, one in: the region does not expand
+            else:
+                add[:3] = 1.0
+            return rm, add
+
+    line = LabelledCloud(np.stack([np.arange(40) * 0.1 + 0.05, np.full(40, 0.05), np.full(40, 0.05)], axis=1))
+    g = Scripted(voxelise(line, 0.1), biased_net(0.0), LRGNetConfig()).grow(20)
+    assert g.steps == 3 and g.not_expanding == 2 and len(g.region) == 3
+
+
+def test_small_segments_take_the_label_of_their_nearest_neighbour() -> None:
+    cloud = apart_boxes()
+    res = refine_cloud(cloud, LRGNetConfig(min_segment_points=10), net=biased_net(add=20.0))
+    frag, box1 = cloud.instance_ids == 3, cloud.instance_ids == 1
+    assert len(np.unique(res.instance_ids[frag])) == 1
+    assert res.instance_ids[frag][0] == res.instance_ids[box1][0]
+    assert len(np.unique(res.instance_ids)) == 2
+
+
+def test_search_is_seeded_and_deterministic(weights_file: Path) -> None:
+    cloud = small_room()
+    net, _ = load_weights(weights_file, weight_settings(LRGNetConfig()))
+    for search in ("restart", "beam"):
+        cfg = LRGNetConfig(search=search, restarts=3, max_steps=3, seed=5)
+        a = refine_cloud(cloud, cfg, net=net)
+        b = refine_cloud(cloud, cfg, net=net)
+        assert np.array_equal(a.instance_ids, b.instance_ids)
+        assert a.steps_per_object == b.steps_per_object
+
+
+# ----------------------------------------------------------------------------- training data
+def test_simulated_growth_labels_match_the_truth() -> None:
+    cloud = small_room()
+    vc = voxelise(cloud, 0.1)
+    truth = voxel_truth(vc, cloud)
+    assert set(np.unique(truth)) == {1, 2, 3, 4, 5}
+    steps = simulate_growth(vc, truth, np.random.default_rng(0), 64, 32)
+    assert len(steps) > 10
+    for si, sn, rm, add, centre in steps[:20]:
+        assert si.shape == (64,) and sn.shape == (32,) and centre.shape == (9,)
+        target = truth[si][~rm]
+        assert len(np.unique(target)) <= 1  # kept inliers all belong to one object
+        assert np.all((truth[sn] == (target[0] if len(target) else -1)) == add) or not len(target)
+    samples = make_samples([cloud], LRGNetConfig(), np.random.default_rng(0), points=32)
+    xi, xn, rm, add = batch_tensors(samples, np.arange(4), np.random.default_rng(0))
+    assert xi.shape == (4, 32, 13) and xn.shape == (4, 32, 13) and rm.shape == (4, 32) and add.shape == (4, 32)
+    assert torch.allclose(xi[..., 9:12].norm(dim=-1), xi[..., 9:12].norm(dim=-1))  # finite
+
+
+# ----------------------------------------------------------------------------- baselines
+@pytest.mark.parametrize("name", [Baseline.THRESHOLD, Baseline.SMOOTHNESS, Baseline.FPFH])
+def test_baselines_segment_a_simple_room(name: Baseline) -> None:
+    cloud = small_room()
+    res = baseline_cloud(cloud, name, LRGNetConfig())
+    assert res.instance_ids.shape == (len(cloud),) and res.instance_ids.min() >= 1
+    s = scores(cloud.instance_ids, res.instance_ids)
+    assert 0 <= s["nmi"] <= 1 and s["predicted_instances"] >= 2
+
+
+# ----------------------------------------------------------------------------- the command
+def test_refine_command_json(tmp_path: Path, weights_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    ply = write_cloud(tmp_path / "room.ply", small_room())
+    out = tmp_path / "refined.ply"
+    args = ["refine", str(ply), "--truth", "--json", "--weights", str(weights_file), "--set", "lrgnet.max_steps=4"]
+    assert main([*args, "--no-baselines", "--out", str(out)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    for key in ("nmi", "ami", "ari", "precision", "recall", "mean_iou", "segments", "steps_per_object"):
+        assert key in report
+    assert 0 <= report["nmi"] <= 1 and report["points"] == len(small_room())
+    assert out.is_file()
+    assert main([*args, "--no-baselines", "--out", str(out)]) == 2  # exists without --force
+    assert "already exists" in capsys.readouterr().err
+
+
+def test_refine_command_bad_input(tmp_path: Path, weights_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["refine", str(tmp_path / "missing.ply")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("aftershock: error:") and "missing.ply" in err and err.count("\n") == 1
+    room = small_room()
+    room.instance_ids = None
+    ply = write_cloud(tmp_path / "nolabels.ply", room)
+    assert main(["refine", str(ply), "--truth", "--weights", str(weights_file)]) == 2
+    assert "instance_id" in capsys.readouterr().err
+    wrong = tmp_path / "wrong.pt"
+    save_weights(wrong, LRGNet(), {**weight_settings(LRGNetConfig()), "voxel_size_m": 0.2}, {})
+    assert main(["refine", str(ply), "--weights", str(wrong)]) == 2
+    err = capsys.readouterr().err
+    assert "wrong.pt" in err and "voxel_size_m" in err and "aftershock train lrgnet" in err
+    with pytest.raises(InputError, match="not an LRGNet weights file"):
+        torch.save({"x": 1}, tmp_path / "other.pt")
+        load_weights(tmp_path / "other.pt", weight_settings(LRGNetConfig()))
