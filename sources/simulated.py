@@ -12,7 +12,6 @@ from the mission start).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
@@ -108,8 +107,8 @@ def check_spec(spec: SimSpec, where: str) -> None:
         raise InputError("spacing must be between 0.01 and 100 m", where)
 
 
-def make_mission(spec: SimSpec, scans: int | None = None) -> Mission:
-    """The scene and mission of a spec (`scans` overrides the spec's count when given)."""
+def make_mission(spec: SimSpec) -> Mission:
+    """The scene and mission of a spec."""
     from sources.simulator import Mission, build_scene, get_profile
     from sources.simulator.trajectory import WALK_SPEED_MPS
 
@@ -120,8 +119,8 @@ def make_mission(spec: SimSpec, scans: int | None = None) -> Mission:
         scene,
         get_profile(spec.sensor),
         seed=spec.seed,
-        scans=spec.scans if scans is None else scans,
-        duration_s=spec.duration_s if scans is None else None,
+        scans=spec.scans,
+        duration_s=spec.duration_s,
         story=spec.story,
         speed=spec.speed or WALK_SPEED_MPS,
         spacing_m=spec.spacing_m,
@@ -130,9 +129,7 @@ def make_mission(spec: SimSpec, scans: int | None = None) -> Mission:
 
 def open_simulated(uri: str, **options: Any) -> Iterator[Scan]:
     """Scans of the mission a `sim://` URI describes; options max_scans, every, start_s, end_s, progress."""
-    from sources.simulator.mission import DEFAULT_SCANS, POINTS_TOPIC, MissionPlan
-    from sources.simulator.profiles import get_profile
-    from sources.simulator.trajectory import WALK_SPEED_MPS
+    from sources.simulator.mission import DEFAULT_SCANS, POINTS_TOPIC
 
     options = {k: v for k, v in options.items() if v is not None}
     unknown = set(options) - _OPTIONS
@@ -146,22 +143,19 @@ def open_simulated(uri: str, **options: Any) -> Iterator[Scan]:
     if every < 1:
         raise InputError("every must be at least 1", uri)
     max_scans = options.get("max_scans")
-    start_s = float(options.get("start_s", 0.0))
     end_s = options.get("end_s")
-    period = MissionPlan.make(get_profile(spec.sensor), spec.speed or WALK_SPEED_MPS, 1, None, spec.spacing_m).period_s
-    first = max(math.ceil(start_s / period - 1e-9), 0)
+    mission = make_mission(spec)
+    first = mission.first_at_or_after(float(options.get("start_s", 0.0)))
     if spec.scans is not None or spec.duration_s is not None:
-        total = None
+        last = len(mission)
     elif end_s is not None:
-        total = math.floor(float(end_s) / period + 1e-9) + 1
+        last = mission.count_before(float(end_s) + 1e-9)
     elif max_scans is not None:
-        total = first + int(max_scans) * every
+        last = first + int(max_scans) * every
     else:
-        total = DEFAULT_SCANS
-    mission = make_mission(spec, scans=total)
-    last = len(mission)
+        last = DEFAULT_SCANS
     if end_s is not None:
-        last = min(last, math.floor(float(end_s) / period + 1e-9) + 1)
+        last = min(last, mission.count_before(float(end_s) + 1e-9))
     keep = range(first, last, every)
     if max_scans is not None:
         keep = keep[: int(max_scans)]

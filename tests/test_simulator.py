@@ -27,7 +27,13 @@ from sources.simulator import (
     get_profile,
 )
 from sources.simulator.recording import write_mission
-from sources.simulator.trajectory import CLEARANCE_M, PROBE_HEIGHTS_M, plan_tour, segment_clear
+from sources.simulator.trajectory import (
+    CLEARANCE_M,
+    PROBE_HEIGHTS_M,
+    TURN_RATE_RAD_S,
+    plan_tour,
+    segment_clear,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = ("disaster", 2)  # a small two-story building keeps these tests quick
@@ -142,7 +148,7 @@ def test_profiles_are_data():
 def test_trajectory_never_crosses_a_wall(scene):
     tr = plan_tour(scene, 0, 0)
     assert tr.length > 10
-    times = np.arange(0.0, tr.length / tr.speed, 0.05)
+    times = np.arange(0.0, tr.period_s, 0.05)
     assert tr.grid.is_free(tr.xy_at(times)).all(), "every position is in a free cell"
     assert segment_clear(scene, tr, times).all(), "no move between two positions passes through a surface"
     floor = tr.grid.floor_matrix
@@ -156,6 +162,12 @@ def test_trajectory_never_crosses_a_wall(scene):
     assert (heights > 0.8).all() and (heights < 1.0).all()
     speed = np.linalg.norm(np.diff(poses[:, :2, 3], axis=0), axis=1) / 0.05
     assert speed.max() < 1.5, "walking speed"
+    yaw = np.unwrap(tr._at(times, tr.yaw))
+    assert np.abs(np.diff(yaw)).max() / 0.05 <= TURN_RATE_RAD_S + 1e-6, "no spinning on the spot"
+    ends = np.array([0.0, tr.period_s - 1e-9])
+    assert tr.xy_at(ends)[0] == pytest.approx(tr.xy_at(ends)[1], abs=1e-6), "the loop closes"
+    heading = tr._at(ends, tr.yaw)
+    assert np.cos(heading[0] - heading[1]) == pytest.approx(1.0, abs=1e-6), "facing the same way"
 
 
 def test_points_lie_on_the_surfaces_they_are_labelled_with(scene, mission, scans):

@@ -719,7 +719,7 @@ def _furnish(plan: _Plan, room: Room, b: MeshBuilder, rng: np.random.Generator, 
         if rng.random() < 0.2 * f:
             along_wall(fur.sofa(rng))
         return
-    for _ in range(rng.poisson(area / 14 * f)):
+    for _ in range(rng.poisson(area / 22 * f)):
         along_wall(fur.bookcase(rng))
     if rng.random() < 0.6:
         _board(plan, room, b, rng, shade)
@@ -808,7 +808,9 @@ def _damage_stories(plan: _Plan, b: MeshBuilder, rng: np.random.Generator) -> No
         rooms = [r for r in plan.rooms if r.story == k]
         n = int(rng.integers(spec.debris_piles_per_story[0], spec.debris_piles_per_story[1] + 1))
         for _ in range(n):
-            room = rooms[int(rng.integers(len(rooms)))]
+            # a third of the piles narrow a corridor, where the robot has to get past them
+            corridors = [r for r in rooms if r.kind == "corridor"]
+            room = corridors[0] if corridors and rng.random() < 0.35 else rooms[int(rng.integers(len(rooms)))]
             if room.kind == "corridor":
                 width = room.y1 - room.y0
                 r = width * rng.uniform(0.2, 0.35)

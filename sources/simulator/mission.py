@@ -8,7 +8,6 @@ sensor frame at the moment each was measured; the scan's `gt_pose` is the true p
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
@@ -25,34 +24,14 @@ POINTS_TOPIC: Final = "/lidar/points"
 QUANTUM_INV: Final = 512.0  # 2 mm: the VLP-16 packet range resolution
 
 
-@dataclass(frozen=True, slots=True)
-class MissionPlan:
-    """When each sweep starts and how many there are."""
-
-    period_s: float
-    scans: int
-
-    @staticmethod
-    def make(
-        profile: SensorProfile,
-        speed: float,
-        scans: int | None,
-        duration_s: float | None,
-        spacing_m: float | None = None,
-    ) -> MissionPlan:
-        """Sweeps at the sensor rate, or one every `spacing_m` (else the profile's spacing) of travel."""
-        spacing = spacing_m or profile.spacing_m
-        period = spacing / speed if spacing else 1.0 / profile.rate_hz
-        period = max(period, profile.sweep_s)  # a new sweep cannot start before the last one ended
-        if scans is None:
-            scans = DEFAULT_SCANS if duration_s is None else int(np.floor(duration_s / period + 1e-9))
-        if scans < 0:
-            raise ValueError("the number of scans cannot be negative")
-        return MissionPlan(period, int(scans))
-
-
 class Mission:
-    """Scans of `profile` along a tour of one story of `scene`; iterate to get them."""
+    """Scans of `profile` along a tour of one story of `scene`; iterate to get them.
+
+    Sweeps follow each other at the sensor rate, or (with a spacing, from the argument or the profile)
+    start whenever the robot has walked `spacing_m` further or turned as much (`TURN_M_PER_RAD`); a
+    sweep never starts before the previous one ended. `scans` (default `DEFAULT_SCANS`) or `duration_s`
+    sets how many there are; `scan(k)` gives any sweep, also beyond that count.
+    """
 
     def __init__(
         self,
@@ -69,22 +48,51 @@ class Mission:
     ) -> None:
         if not 0 <= story < scene.num_stories:
             raise ValueError(f"story {story} is not in this building (0..{scene.num_stories - 1})")
+        if scans is not None and scans < 0:
+            raise ValueError("the number of scans cannot be negative")
         self.scene, self.profile, self.seed, self.story = scene, profile, int(seed), story
-        self.plan = MissionPlan.make(profile, speed, scans, duration_s, spacing_m)
+        self.spacing_m = spacing_m or profile.spacing_m
         self.start_ns = int(start_ns)
         self.trajectory: Trajectory = plan_tour(scene, story, self.seed, speed)
+        self._starts = np.zeros(0)
+        if scans is None:
+            scans = DEFAULT_SCANS if duration_s is None else self.count_before(duration_s)
+        self.num_scans = int(scans)
         self._dirs = profile.directions()  # (C, B, 3)
         self._times = profile.times()  # (C, B)
         self._ring = np.broadcast_to(profile.rings()[None, :], self._times.shape)
 
     def __len__(self) -> int:
-        return self.plan.scans
+        return self.num_scans
+
+    def sweep_starts(self, n: int) -> np.ndarray:
+        """Start times (s from the mission start) of the first n sweeps."""
+        if len(self._starts) < n:
+            k = np.arange(max(n, 2 * len(self._starts)))
+            sweep = self.profile.sweep_s
+            if self.spacing_m:
+                trigger = self.trajectory.time_at_progress(k * self.spacing_m)
+                # s_k = max(trigger_k, s_k-1 + sweep), in closed form: a running maximum
+                self._starts = np.maximum.accumulate(trigger - k * sweep) + k * sweep
+            else:
+                self._starts = k / self.profile.rate_hz
+        return self._starts[:n]
 
     def sweep_start_s(self, k: int) -> float:
-        return k * self.plan.period_s
+        return float(self.sweep_starts(k + 1)[k])
+
+    def count_before(self, t: float) -> int:
+        """How many sweeps start before time t."""
+        n = 64
+        while self.sweep_starts(n)[-1] < t:
+            n *= 2
+        return int(np.searchsorted(self.sweep_starts(n), t, side="left"))
+
+    def first_at_or_after(self, t: float) -> int:
+        return self.count_before(t - 1e-9) if t > 0 else 0
 
     def __iter__(self) -> Iterator[Scan]:
-        for k in range(self.plan.scans):
+        for k in range(self.num_scans):
             yield self.scan(k)
 
     def scan(self, k: int) -> Scan:

@@ -24,6 +24,8 @@ CLEARANCE_M: Final = 0.28  # robot half width plus a margin
 PROBE_HEIGHTS_M: Final = (0.4, 0.9, 1.5)
 SENSOR_HEIGHT_M: Final = 0.9
 WALK_SPEED_MPS: Final = 1.0
+TURN_RATE_RAD_S: Final = 0.8  # fastest turn of a walking robot
+TURN_M_PER_RAD: Final = 0.5  # a distance-triggered scanner also scans every ~23 degrees of turning
 WAYPOINT_TILE_M: Final = 5.0
 GAIT_HZ: Final = 1.8
 GAIT_TILT_DEG: Final = 0.6
@@ -130,12 +132,15 @@ def _path(pred: np.ndarray, target: int) -> list[int]:
 
 @dataclass(slots=True)
 class Trajectory:
-    """A closed loop through a story, walked at constant speed; sensor poses at any time."""
+    """A closed loop through a story: walked at `speed`, turning at most `TURN_RATE_RAD_S` (the robot slows
+    down, or turns on the spot, where the path bends), repeated; sensor poses at any time."""
 
     grid: FreeGrid
     s: np.ndarray  # (M,) arc length of the samples
     xy: np.ndarray  # (M, 2) in the floor frame
-    yaw: np.ndarray  # (M,) heading, unwrapped
+    yaw: np.ndarray  # (M,) heading, unwrapped; the last sample equals the first modulo 2 pi
+    time: np.ndarray  # (M,) when the robot is at each sample
+    progress: np.ndarray  # (M,) metres walked plus TURN_M_PER_RAD per radian turned (triggers scans)
     waypoints: np.ndarray  # (W, 2)
     speed: float = WALK_SPEED_MPS
     gait_phase: float = 0.0
@@ -144,16 +149,28 @@ class Trajectory:
     def length(self) -> float:
         return float(self.s[-1])
 
+    @property
+    def period_s(self) -> float:
+        """Time for one loop."""
+        return float(self.time[-1])
+
+    def _at(self, times: np.ndarray, values: np.ndarray) -> np.ndarray:
+        t = np.mod(np.asarray(times, np.float64), self.period_s)
+        return np.interp(t, self.time, values)
+
     def xy_at(self, times: np.ndarray) -> np.ndarray:
-        s = np.mod(np.asarray(times, np.float64) * self.speed, self.length)
-        return np.stack([np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])], axis=-1)
+        return np.stack([self._at(times, self.xy[:, 0]), self._at(times, self.xy[:, 1])], axis=-1)
+
+    def time_at_progress(self, progress: np.ndarray) -> np.ndarray:
+        """When the robot has made this much progress (loops counted)."""
+        p = np.asarray(progress, np.float64)
+        loops, rest = np.divmod(p, self.progress[-1])
+        return loops * self.period_s + np.interp(rest, self.progress, self.time)
 
     def poses(self, times: np.ndarray) -> np.ndarray:
         """Sensor -> world 4 x 4 poses (N, 4, 4) at `times` (seconds since the mission start)."""
         t = np.atleast_1d(np.asarray(times, np.float64))
-        s = np.mod(t * self.speed, self.length)
-        x, y = np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])
-        yaw = np.interp(s, self.s, self.yaw)
+        x, y, yaw = self._at(t, self.xy[:, 0]), self._at(t, self.xy[:, 1]), self._at(t, self.yaw)
         ph = 2 * np.pi * GAIT_HZ * t + self.gait_phase
         roll = np.deg2rad(GAIT_TILT_DEG) * np.sin(ph)
         pitch = np.deg2rad(GAIT_TILT_DEG) * 0.6 * np.sin(2 * ph + 1.0)
@@ -169,6 +186,13 @@ class Trajectory:
         out[:, :3, 3] = np.c_[x, y, z] @ floor[:3, :3].T + floor[:3, 3]
         out[:, 3, 3] = 1.0
         return out
+
+
+def _timing(s: np.ndarray, yaw: np.ndarray, speed: float) -> tuple[np.ndarray, np.ndarray]:
+    """Time and progress along the samples: each step takes its walking time or its turning time."""
+    ds, dyaw = np.diff(s), np.abs(np.diff(yaw))
+    dt = np.maximum(ds / speed, dyaw / TURN_RATE_RAD_S)
+    return np.r_[0.0, np.cumsum(dt)], np.r_[0.0, np.cumsum(ds + TURN_M_PER_RAD * dyaw)]
 
 
 def plan_tour(scene: Scene, story: int, seed: int, speed: float = WALK_SPEED_MPS) -> Trajectory:
@@ -208,9 +232,24 @@ def plan_tour(scene: Scene, story: int, seed: int, speed: float = WALK_SPEED_MPS
         raise RuntimeError(f"story {story}: the robot has nowhere to go")
     xy = _smooth(xy, grid)
     s, xy = _resample(xy, 0.05)
-    yaw = _heading(xy, s)
+    yaw = _heading(xy)
+    # close the loop: turn on the spot at the start until facing the way the loop begins
+    s, xy = np.r_[s, s[-1]], np.r_[xy, xy[-1:]]
+    yaw = np.r_[yaw, yaw[0] + 2 * np.pi * np.round((yaw[-1] - yaw[0]) / (2 * np.pi))]
+    time, progress = _timing(s, yaw, speed)
+    keep = np.r_[True, np.diff(time) > 1e-9]
     wp = grid.cell_xy(np.array([[g // ny, g % ny] for g in visited])) if visited else xy[:1]
-    return Trajectory(grid, s, xy, yaw, wp, speed=speed, gait_phase=float(rng.uniform(0, 2 * np.pi)))
+    return Trajectory(
+        grid,
+        s[keep],
+        xy[keep],
+        yaw[keep],
+        time[keep],
+        progress[keep],
+        wp,
+        speed=speed,
+        gait_phase=float(rng.uniform(0, 2 * np.pi)),
+    )
 
 
 def _room_goals(grid: FreeGrid, room: Room, tile_m: float = WAYPOINT_TILE_M) -> list[tuple[int, int]]:
@@ -247,13 +286,12 @@ def _resample(xy: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     return ss, np.stack([np.interp(ss, s, xy[:, 0]), np.interp(ss, s, xy[:, 1])], axis=1)
 
 
-def _heading(xy: np.ndarray, s: np.ndarray, look_m: float = 0.4) -> np.ndarray:
-    """Heading that looks a little ahead and behind, so turns are smooth; unwrapped."""
-    ahead = np.stack([np.interp(s + look_m, s, xy[:, i], period=s[-1]) for i in range(2)], axis=1)
-    behind = np.stack([np.interp(s - look_m, s, xy[:, i], period=s[-1]) for i in range(2)], axis=1)
-    d = ahead - behind
-    yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-    return yaw
+def _heading(xy: np.ndarray, ahead: int = 4) -> np.ndarray:
+    """Heading towards the point `ahead` samples on (0.2 m), unwrapped; at a dead end it flips by pi, which
+    the turn-rate limit turns into turning on the spot."""
+    d = xy[np.minimum(np.arange(len(xy)) + ahead, len(xy) - 1)] - xy
+    d[-ahead:] = d[-ahead - 1]
+    return np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
 
 
 def segment_clear(scene: Scene, trajectory: Trajectory, times: np.ndarray) -> np.ndarray:
