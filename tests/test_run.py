@@ -142,6 +142,29 @@ def test_eval_scores_a_log_with_truth(tmp_path: Path, capsys) -> None:
     assert code == 0 and "mean IoU" in stdout and "ATE" in stdout
 
 
+def test_eval_on_a_small_simulated_mission(capsys) -> None:
+    uri = "sim://disaster?seed=5&sensor=vlp16&scans=8"
+    code, stdout, _ = _run_cli(["eval", uri, "--labeller", "region-growing", "--quiet", "--json"], capsys)
+    assert code == 0
+    rep = json.loads(stdout)
+    assert set(EVAL_KEYS) <= set(rep) and rep["scans"] == 8
+    assert rep["environment"] == "indoor" and rep["evaluated_points"] > 100
+    assert rep["ate_m"] < 0.3 and rep["nmi"] > 0.3
+
+
+def test_the_default_labeller_falls_back_only_when_not_asked_for_by_name(
+    lidar_dir: Path, tmp_path: Path, capsys
+) -> None:
+    uri = str(lidar_dir / "velodyne_vlp16_indoor.mcap")
+    missing = tmp_path / "none.pt"
+    code, stdout, err = _run_cli(["run", uri, "--set", f'label.weights="{missing}"', "--json"], capsys)
+    assert code == 0 and json.loads(stdout)["labeller"] == "region-growing"
+    assert "none.pt" in err and "using the region-growing baseline instead" in err
+    args = ["run", uri, "--labeller", "mcpnet", "--set", f'label.weights="{missing}"', "--quiet"]
+    code, _, err = _run_cli(args, capsys)
+    assert code == 2 and "none.pt" in err and len(err.strip().splitlines()) == 1
+
+
 def test_eval_refuses_a_log_without_truth(lidar_dir: Path, capsys) -> None:
     code, stdout, err = _run_cli(["eval", str(lidar_dir / "velodyne_vlp16_indoor.mcap"), "--quiet"], capsys)
     assert code == 2 and stdout == ""
