@@ -136,6 +136,7 @@ class DriftConfig(_Section):
     gravity: str = "frame-z"  # frame-z | ground-plane
     slab_merge_m: float = 0.6  # density bands closer than this (a slab's top and underside) are one slab
     max_slab_tilt_deg: float = 20.0  # a fitted plane steeper than this is not a slab
+    min_slab_share: float = 0.2  # a slab plane has at least this share of the largest slab plane's points
     seed: int = 0
 
 

@@ -190,3 +190,18 @@ def test_pcd_input_without_colour_needs_a_geometric_feature(tmp_path: Path) -> N
     path = write_cloud(tmp_path / "c.ply", LabelledCloud(pts))
     assert main(["cracks", str(path), "--features", "curvature", "--json"]) == 0
     assert main(["cracks", str(path), "--features", "nonsense"]) == 2
+
+
+def test_assess_damage_on_a_dense_simulated_column() -> None:
+    """A labelled dense element: assessed as one structural instance; cracks reported with their sizes."""
+    from pipeline.config import Config
+    from pipeline.damage import assess_damage
+    from sources.simulator.cracks import cracked_element
+
+    cloud, _, _ = cracked_element("column", 100, 0.004)
+    report = assess_damage(cloud, Config())
+    assert report.elements_checked == 1
+    assert report.cracks and report.crack_points is not None and len(report.crack_points) > 0
+    out = json.loads(json.dumps(report.to_json()))
+    assert all(c["length_m"] > 0 and c["width_m"] > 0 for c in out["cracks"])
+    assert out["stories"] == [] or isinstance(out["stories"], list)

@@ -155,6 +155,16 @@ def _surfaces(band: np.ndarray, cfg: DriftConfig, rng: np.random.Generator) -> l
     return sorted(out, key=lambda s: s.height)
 
 
+def _bands(pts: np.ndarray, cfg: DriftConfig) -> list[tuple[float, float]]:
+    """Slab bands with bins no finer than the point spacing (a voxelised map would alias finer bins), over
+    the same height window whatever the bin."""
+    from pipeline.damage.measure import point_spacing
+
+    bin_m = max(cfg.bin_m, point_spacing(pts, sample=5000, seed=cfg.seed))
+    window = max(3, round(cfg.neighbourhood_bins * cfg.bin_m / bin_m))
+    return slab_bands(pts[:, 2], bin_m, cfg.density_ratio, window, cfg.slab_merge_m)
+
+
 def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     """Stories (lowest first) of a structure: each slab plane with its drift (mm) and tilt (°) against the
     lowest plane. Fewer than two slabs gives the slabs found with zero drift, and a note."""
@@ -166,20 +176,23 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     if len(pts) < _MIN_SLAB_POINTS:
         return DriftResult([], gravity.value, notes=["too few points to find story slabs"])
     if gravity is Gravity.GROUND_PLANE:
-        bands = slab_bands(pts[:, 2], cfg.bin_m, cfg.density_ratio, cfg.neighbourhood_bins, cfg.slab_merge_m)
+        bands = _bands(pts, cfg)
         if bands:
             lo, hi = bands[0]
             low = pts[(pts[:, 2] >= lo) & (pts[:, 2] < hi)]
             plane, _ = ransac_plane(low, cfg.ransac_threshold_m, cfg.ransac_iterations, rng)
             rot = _level(pts, plane[:3])
             pts = pts @ rot.T
-    bands = slab_bands(pts[:, 2], cfg.bin_m, cfg.density_ratio, cfg.neighbourhood_bins, cfg.slab_merge_m)
+    bands = _bands(pts, cfg)
     slabs: list[list[_Surface]] = []
     for lo, hi in bands:  # one iteration per slab
         band = pts[(pts[:, 2] >= lo - cfg.bin_m) & (pts[:, 2] < hi + cfg.bin_m)]
         surfaces = _surfaces(band, cfg, rng) if len(band) >= _MIN_SLAB_POINTS else []
         if surfaces:
             slabs.append(surfaces)
+    if slabs:  # a slab covers a floor: a small horizontal patch (a table top, a pile) is not one
+        largest = max(max(x.points for x in surfaces) for surfaces in slabs)
+        slabs = [x for x in slabs if max(y.points for y in x) >= cfg.min_slab_share * largest]
     if len(slabs) < 2:
         notes.append(f"{len(slabs)} story slab(s) found: drift needs at least two")
     stories: list[Story] = []
