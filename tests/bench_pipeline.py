@@ -33,7 +33,7 @@ MISSION: Final = {"scene": "disaster", "seed": 900, "sensor": "vlp16"}
 TARGET_SCANS_PER_S: Final = 20.0
 MEMORY_LIMIT_GB: Final = 2.0
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
 
 
 @pytest.fixture(scope="module")
