@@ -89,6 +89,21 @@ class MCPNet(nn.Module):
         self.embed = nn.Linear(w, cfg.embed_dim)
         self.classify = _mlp(w + cfg.embed_dim, w, cfg.num_classes, last_relu=False)
 
+    def pool_context(self, context: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """max over neighbours of the shared MLP, absent neighbours left out (0 when a point has none).
+
+        max(relu(h)) = relu(max(h)), so the last ReLU runs on the pooled (B, W) rather than on (B, M, W);
+        and absent neighbours are replaced by a present one of the same point, which leaves the max as it is."""
+        if mask is not None and not bool(mask.all()):
+            first = mask.to(torch.int8).argmax(dim=1)  # a present neighbour per point (0 when none)
+            fill = context[torch.arange(len(context)), first].unsqueeze(1).expand_as(context)
+            context = torch.where(mask.unsqueeze(-1), context, fill)
+        lin1, relu1, lin2 = self.context_mlp[0], self.context_mlp[1], self.context_mlp[2]
+        pooled = torch.relu(lin2(relu1(lin1(context))).amax(dim=1))
+        if mask is not None:
+            pooled = pooled * mask.any(dim=1, keepdim=True).to(pooled.dtype)
+        return pooled
+
     def forward(
         self, point: torch.Tensor, context: torch.Tensor | None = None, mask: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -97,10 +112,7 @@ class MCPNet(nn.Module):
         x = point
         if self.use_context:
             assert context is not None
-            h = self.context_mlp(context)  # (B, M, W), ReLU output >= 0
-            if mask is not None:
-                h = h * mask.unsqueeze(-1).to(h.dtype)  # absent neighbours pool to 0, the ReLU floor
-            x = torch.cat([h.amax(dim=1), point], dim=1)
+            x = torch.cat([self.pool_context(context, mask), point], dim=1)
         feat = self.point_mlp(x)
         emb = nn.functional.normalize(self.embed(feat), dim=1)
         logits = self.classify(torch.cat([feat, emb], dim=1))
@@ -203,3 +215,20 @@ def context_features(
         c = colors.astype(np.float32) / 255.0
         ctx[..., 3:6] = c[safe] - c[rows][:, None, :]
     return ctx, mask
+
+
+_MIX1: Final = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2: Final = np.uint64(0x94D049BB133111EB)
+_GOLDEN: Final = np.uint64(0x9E3779B97F4A7C15)
+
+
+def context_draws(voxel_keys: np.ndarray, num: int) -> np.ndarray:
+    """(K, num) uniform numbers in [0, 1) hashed (splitmix64) from each voxel's key: which context points a
+    voxel draws depends on the voxel and the map only, never on the other voxels predicted with it."""
+    k = np.asarray(voxel_keys, dtype=np.int64).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        z = k[:, None] * np.uint64(num) + np.arange(num, dtype=np.uint64)[None, :] + _GOLDEN
+        z = (z ^ (z >> np.uint64(30))) * _MIX1
+        z = (z ^ (z >> np.uint64(27))) * _MIX2
+        z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)).astype(np.float64) / float(1 << 53)

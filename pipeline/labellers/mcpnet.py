@@ -17,7 +17,7 @@ from typing import Final
 import numpy as np
 import torch
 
-from models.mcpnet import NetConfig, context_features, default_weights, load_model, point_features
+from models.mcpnet import NetConfig, context_draws, context_features, default_weights, load_model, point_features
 from pipeline.config import Config, Environment
 from pipeline.types import Frame, LabelledCloud
 from pipeline.voxel_map import VoxelMap
@@ -46,6 +46,8 @@ class MCPNetLabeller:
         self.name = kind
         path = Path(weights or default_weights(kind))
         self.model, self.net, self.figures = load_model(path, kind=kind)
+        # Batches of a few dozen voxels: a second intra-op thread only waits (10-20x slower on a busy machine).
+        torch.set_num_threads(1)
         self.weights = path
         self.embedding_dim = self.net.embed_dim
         self.cell_m = cfg.map.context_cell_m
@@ -53,7 +55,7 @@ class MCPNetLabeller:
         outdoor = cfg.label.environment is Environment.OUTDOOR
         self.beta = cfg.cluster.beta_outdoor if outdoor else cfg.cluster.beta_indoor
         self.relabel = cfg.label.relabel_old_voxels
-        self.rng = np.random.default_rng(0)  # context draws: the same run gives the same labels
+        self.rng = np.random.default_rng(0)  # which older voxels are relabelled
 
     @property
     def config(self) -> NetConfig:
@@ -82,7 +84,8 @@ class MCPNetLabeller:
             pf = point_features(vmap.positions[r], None if colors is None else colors[r], o, floor_z)
             ctx = mask = None
             if use_ctx:
-                ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, self.rng)
+                draws = context_draws(vmap.keys[r], self.num)
+                ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, uniform=draws)
                 c, m = context_features(vmap.positions, colors, r, ctx_rows)
                 ctx, mask = torch.from_numpy(c), torch.from_numpy(m)
             with torch.inference_mode():

@@ -39,6 +39,8 @@ class PointNetLabeller:
         self.name = name
         self.mode = MODES[name]
         self.model, self.net, _ = load_model(Path(weights or default_weights("pointnet")), kind="pointnet")
+        # Batches of a few dozen voxels: a second intra-op thread only waits (10-20x slower on a busy machine).
+        torch.set_num_threads(1)
         self.embedding_dim = self.net.embed_dim
         outdoor = cfg.label.environment is Environment.OUTDOOR
         self.beta = cfg.cluster.beta_outdoor if outdoor else cfg.cluster.beta_indoor

@@ -1,0 +1,199 @@
+"""MCPNet: batch independence, the colour-free mode, weights files (shipped, missing, mismatched) and a short
+simulated run through the stream."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import sources
+from models.mcpnet import (
+    MCPNet,
+    NetConfig,
+    context_draws,
+    default_weights,
+    load_model,
+    num_parameters,
+    save_weights,
+)
+from models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
+from pipeline.classes import UNLABELLED
+from pipeline.config import Config
+from pipeline.errors import InputError
+from pipeline.labellers.mcpnet import MCPNetLabeller
+from pipeline.stream import run_stream
+from pipeline.types import LabelledCloud, RunInfo
+from pipeline.voxel_map import VoxelMap
+
+SIM = "sim://office?seed=950&sensor=vlp16&scans=25"
+MAX_WEIGHTS_BYTES = 5 * 1024 * 1024
+
+
+def _inputs(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    mask = torch.rand(n, 50, generator=g) > 0.2
+    return torch.randn(n, 7, generator=g), torch.randn(n, 50, 6, generator=g), mask
+
+
+@pytest.mark.parametrize("kind", ["mcpnet", "mcpnet-nocontext"])
+def test_a_points_output_does_not_depend_on_its_batch_mates(kind: str) -> None:
+    model, _, _ = load_model(default_weights(kind), kind=kind)
+    p, c, m = _inputs(1, 0)
+    alone = model(p, c, m)
+    for seed in (1, 2):
+        op, oc, om = _inputs(63, seed)
+        emb, logits = model(
+            torch.cat([op[:20], p, op[20:]]), torch.cat([oc[:20], c, oc[20:]]), torch.cat([om[:20], m, om[20:]])
+        )
+        torch.testing.assert_close(emb[20:21], alone[0], atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(logits[20:21], alone[1], atol=1e-4, rtol=1e-5)
+
+
+def test_context_draws_depend_on_the_voxel_only() -> None:
+    keys = np.array([5, 17, -3, 1 << 40])
+    u = context_draws(keys, 50)
+    assert u.shape == (4, 50) and (u >= 0).all() and (u < 1).all()
+    np.testing.assert_array_equal(context_draws(keys[[2, 0]], 50), u[[2, 0]])
+    assert 0.4 < u.mean() < 0.6
+
+
+def test_labeller_predictions_do_not_depend_on_which_rows_are_asked_with() -> None:
+    rng = np.random.default_rng(0)
+    vmap = VoxelMap(0.1, 50)
+    pts = rng.uniform(-1, 1, (800, 3))
+    vmap.insert(pts, rng.integers(0, 255, (800, 3)).astype(np.uint8))
+    labeller = MCPNetLabeller(Config())
+    origin = np.zeros(3)
+    rows = np.arange(len(vmap))
+    cls_all, _score_all, emb_all = labeller.predict(vmap, rows, origin, -1.0, True)
+    pick = rows[[7, 300, 2]]
+    cls_few, _score_few, emb_few = labeller.predict(vmap, pick, origin, -1.0, True)
+    np.testing.assert_array_equal(cls_few, cls_all[pick])
+    np.testing.assert_allclose(emb_few, emb_all[pick], atol=1e-5)
+
+
+def test_triplet_loss_is_the_semi_hard_rule() -> None:
+    g = torch.Generator().manual_seed(0)
+    emb = torch.nn.functional.normalize(torch.randn(30, 4, generator=g), dim=1)
+    labels = torch.randint(0, 4, (30,), generator=g)
+    d = (2 - 2 * emb @ emb.T).clamp_min(0).numpy()
+    lab = labels.numpy()
+    expect = []
+    for a in range(30):
+        for p in range(30):
+            if a == p or lab[a] != lab[p]:
+                continue
+            negs = d[a][lab != lab[a]]
+            beyond = negs[negs > d[a, p]]
+            dn = beyond.min() if len(beyond) else negs.max()
+            expect.append(max(0.0, 1.0 + d[a, p] - dn))
+    assert float(semihard_triplet_loss(emb, labels)) == pytest.approx(float(np.mean(expect)), rel=1e-5)
+
+
+def test_training_and_heldout_seeds_are_disjoint() -> None:
+    assert not set(TRAIN_SEEDS) & set(HELDOUT_SEEDS)
+    assert int(SIM.split("seed=")[1].split("&")[0]) not in TRAIN_SEEDS
+
+
+@pytest.mark.parametrize("kind", ["mcpnet", "mcpnet-nocontext", "pointnet"])
+def test_shipped_weights_load_and_are_small(kind: str) -> None:
+    path = default_weights(kind)
+    model, cfg, figures = load_model(path, kind=kind)
+    assert cfg.kind == kind
+    assert path.stat().st_size < MAX_WEIGHTS_BYTES
+    assert figures["train_seeds"] == list(TRAIN_SEEDS)
+    if kind == "mcpnet":
+        assert 140_000 < num_parameters(model) < 150_000  # the study's ~146 k
+
+
+def test_missing_and_mismatched_weights_are_refused_by_name(tmp_path: Path) -> None:
+    missing = tmp_path / "nope.pt"
+    with pytest.raises(InputError, match=r"nope\.pt.*aftershock train mcpnet"):
+        load_model(missing)
+    other = NetConfig(features=("x", "y", "z"), point_dim=3)
+    bad = tmp_path / "other_layout.pt"
+    save_weights(bad, MCPNet(other), other, {})
+    with pytest.raises(InputError, match=r"other_layout\.pt.*feature layout"):
+        load_model(bad)
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a torch file")
+    with pytest.raises(InputError, match=r"junk\.pt"):
+        load_model(junk)
+
+
+def test_bad_weights_through_the_cli(tmp_path: Path) -> None:
+    bad = tmp_path / "mismatched.pt"
+    other = NetConfig(width=32)
+    torch.save(
+        {
+            "format": "aftershock-mcpnet",
+            "version": 1,
+            "config": other.to_dict(),
+            "figures": {},
+            "state": MCPNet(other).state_dict() | {"extra": torch.zeros(1)},
+        },
+        bad,
+    )
+    sim = "sim://office?seed=951&sensor=vlp16&scans=3"
+    for path, what in ((tmp_path / "missing.pt", "not found"), (bad, "do not fit")):
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pipeline",
+                "eval",
+                sim,
+                "--labeller",
+                "mcpnet",
+                "--set",
+                f"label.weights={path}",
+                "-q",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert out.returncode == 2, out.stderr
+        assert str(path) in out.stderr and what in out.stderr and "aftershock train mcpnet" in out.stderr
+        assert "Traceback" not in out.stderr
+
+
+@pytest.fixture(scope="module")
+def sim_scans() -> list:
+    return list(sources.open(SIM))
+
+
+def _accuracy(vmap: VoxelMap) -> float:
+    known = vmap.true_class_ids != UNLABELLED
+    return float((vmap.class_ids[known] == vmap.true_class_ids[known]).mean())
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_a_short_simulated_run_labels_points(sim_scans: list, color: bool) -> None:
+    scans = sim_scans
+    if not color:
+        scans = [s.select(np.ones(len(s), bool)) for s in sim_scans]
+        for s in scans:
+            s.colors = None
+    result = run_stream(iter(scans), Config(), [], RunInfo(source=SIM, source_kind="sim"), lambda _t: None)
+    vmap = result.vmap
+    assert result.labeller == "mcpnet"
+    assert len(vmap) > 500
+    assert (vmap.class_ids != UNLABELLED).all()
+    np.testing.assert_allclose(np.linalg.norm(vmap.embeddings, axis=1), 1.0, atol=1e-4)
+    assert (vmap.instance_ids > 0).all()
+    assert _accuracy(vmap) > 0.6  # the classes are far from chance (1/14) on a building never trained on
+
+
+def test_embed_cloud_gives_unit_embeddings_per_point() -> None:
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(0, 3, (2000, 3))
+    labeller = MCPNetLabeller(Config())
+    emb = labeller.embed_cloud(LabelledCloud(pts, rng.integers(0, 255, (2000, 3)).astype(np.uint8)))
+    assert emb.shape == (2000, 50)
+    np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-4)
