@@ -366,5 +366,5 @@ def test_sample_recording_is_a_small_labelled_mission():
     path = REPO / "recordings" / "sample.mcap"
     assert path.stat().st_size <= 8 * 1024 * 1024
     scans = list(sources.open(path))
-    assert len(scans) >= 40
+    assert len(scans) >= 30
     assert all(s.has_ground_truth and s.gt_pose is not None and s.times is not None for s in scans)

@@ -8,14 +8,13 @@ spalled and leaning columns, broken walls, collapsed slab panels, debris piles, 
 
 from __future__ import annotations
 
-import itertools
-from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
 
 from pipeline.classes import SemanticClass as C
 from sources.simulator import furniture as fur
+from sources.simulator.contents import furnish
 from sources.simulator.damage import (
     CrackTruth,
     debris_pile,
@@ -24,78 +23,23 @@ from sources.simulator.damage import (
     make_crack,
     random_crack_size,
 )
-from sources.simulator.families import FamilySpec, family_spec
-from sources.simulator.meshes import CONCRETE, GLASS, METAL, PLASTER, TILE, WOOD, MeshBuilder, rotation_xyz, rotation_z
+from sources.simulator.families import family_spec
+from sources.simulator.layout import Opening, Plan, Wall, make_plan
+from sources.simulator.meshes import (
+    CONCRETE,
+    GLASS,
+    METAL,
+    PLASTER,
+    TILE,
+    WOOD,
+    MeshBuilder,
+    rotation_xyz,
+    rotation_z,
+)
 from sources.simulator.raycast import Raycaster
-from sources.simulator.scene import Room, Scene, SceneTruth, StoryTruth, plane_of
+from sources.simulator.scene import Scene, SceneTruth, StoryTruth, plane_of
 
-OUTER_WALL_M: Final = 0.25
-PARTITION_M: Final = 0.12
-DOOR_W: Final = (0.9, 1.05)
-DOOR_H: Final = 2.1
 CRACK_COLOR: Final = (62, 58, 52)
-
-
-@dataclass(slots=True)
-class _Opening:
-    u0: float
-    u1: float
-    z0: float
-    z1: float
-    kind: str  # door | window | gap
-
-
-@dataclass(slots=True)
-class _Wall:
-    """A straight wall from (x0, y0) to (x1, y1) (axis aligned) with openings along it."""
-
-    story: int
-    x0: float
-    y0: float
-    x1: float
-    y1: float
-    thickness: float
-    outer: bool
-    openings: list[_Opening] = field(default_factory=list)
-    broken: bool = False
-
-    @property
-    def along_x(self) -> bool:
-        return abs(self.y1 - self.y0) < 1e-9
-
-    @property
-    def length(self) -> float:
-        return abs(self.x1 - self.x0) + abs(self.y1 - self.y0)
-
-    def point(self, u: float) -> tuple[float, float]:
-        return (self.x0 + u, self.y0) if self.along_x else (self.x0, self.y0 + u)
-
-
-@dataclass(slots=True)
-class _Plan:
-    spec: FamilySpec
-    xs: np.ndarray  # column lines along x
-    ys: np.ndarray
-    story_h: list[float]
-    slab_t: float
-    beam_d: float
-    column_w: float
-    corridor: tuple[float, float]  # y0, y1
-    floor_z: list[float]
-    ceiling_z: list[float]
-    walls: list[_Wall] = field(default_factory=list)
-    rooms: list[Room] = field(default_factory=list)
-    door_zones: dict[int, list[tuple[float, float, float, float]]] = field(default_factory=dict)
-    floor_instances: dict[int, int] = field(default_factory=dict)  # level -> instance of its floor half
-    ceiling_instances: dict[int, int] = field(default_factory=dict)
-
-    @property
-    def width(self) -> float:
-        return float(self.xs[-1])
-
-    @property
-    def depth(self) -> float:
-        return float(self.ys[-1])
 
 
 def build_scene(family: str, seed: int) -> Scene:
@@ -104,12 +48,12 @@ def build_scene(family: str, seed: int) -> Scene:
     root = np.random.SeedSequence([int(seed), sum(map(ord, family))])
     rngs = [np.random.default_rng(s) for s in root.spawn(6)]
     r_plan, r_struct, r_furn, r_damage, r_crack, r_look = rngs
-    plan = _plan(spec, r_plan)
+    plan = make_plan(spec, r_plan)
     b = MeshBuilder(r_struct)
     cracks_on: list[tuple[int, int, np.ndarray, np.ndarray, int, bool]] = []  # candidates for cracks
     _structure(plan, b, r_struct, r_damage, cracks_on)
     for room in plan.rooms:
-        _furnish(plan, room, b, r_furn, r_damage)
+        furnish(plan, room, b, r_furn, r_damage)
     if spec.damage > 0:
         _damage_stories(plan, b, r_damage)
     mesh, v_level, v_span = b.build()
@@ -165,118 +109,8 @@ def build_scene(family: str, seed: int) -> Scene:
     )
 
 
-# ---------------------------------------------------------------------------------------------- plan
-
-
-def _bays(rng: np.random.Generator, lo_hi: tuple[int, int], bay: tuple[float, float]) -> np.ndarray:
-    n = int(rng.integers(lo_hi[0], lo_hi[1] + 1))
-    return np.r_[0.0, np.cumsum(np.round(rng.uniform(*bay, n), 2))]
-
-
-def _plan(spec: FamilySpec, rng: np.random.Generator) -> _Plan:
-    xs, ys = _bays(rng, spec.bays_x, spec.bay_m), _bays(rng, spec.bays_y, spec.bay_m)
-    n_st = int(rng.integers(spec.stories[0], spec.stories[1] + 1))
-    slab_t = round(float(rng.uniform(0.2, 0.28)), 3)
-    h = round(float(rng.uniform(*spec.story_height_m)), 2)
-    story_h = [h] * n_st
-    floor_z = [k * h for k in range(n_st)]
-    ceiling_z = [(k + 1) * h - slab_t for k in range(n_st)]
-    depth = ys[-1]
-    cw = float(rng.uniform(*spec.corridor_width_m))
-    yc = float(np.clip(depth * rng.uniform(0.4, 0.6), 3.2 + cw / 2, depth - 3.2 - cw / 2))
-    plan = _Plan(
-        spec=spec,
-        xs=xs,
-        ys=ys,
-        story_h=story_h,
-        slab_t=slab_t,
-        beam_d=round(float(rng.uniform(0.35, 0.55)), 2),
-        column_w=round(float(rng.uniform(0.4, 0.6)), 2),
-        corridor=(yc - cw / 2, yc + cw / 2),
-        floor_z=floor_z,
-        ceiling_z=ceiling_z,
-    )
-    for k in range(n_st):
-        _story_walls(plan, k, rng)
-    return plan
-
-
-def _story_walls(plan: _Plan, k: int, rng: np.random.Generator) -> None:
-    spec, w, d = plan.spec, plan.width, plan.depth
-    ch = plan.ceiling_z[k] - plan.floor_z[k]
-    zones = plan.door_zones.setdefault(k, [])
-    # Outer walls with a window per bay.
-    for x0, y0, x1, y1, lines in (
-        (0, 0, w, 0, plan.xs),
-        (0, d, w, d, plan.xs),
-        (0, 0, 0, d, plan.ys),
-        (w, 0, w, d, plan.ys),
-    ):
-        wall = _Wall(k, x0, y0, x1, y1, OUTER_WALL_M, True)
-        for a, c in itertools.pairwise(lines):
-            width = min(c - a - 1.2, rng.uniform(1.2, 2.6))
-            mid = (a + c) / 2 + rng.uniform(-0.2, 0.2)
-            sill = rng.uniform(0.8, 1.0)
-            wall.openings.append(_Opening(mid - width / 2, mid + width / 2, sill, min(2.4, ch - 0.3), "window"))
-        plan.walls.append(wall)
-    c0, c1 = plan.corridor
-    half = PARTITION_M / 2 + 0.01
-    plan.rooms.append(Room(k, OUTER_WALL_M / 2, c0 + half, w - OUTER_WALL_M / 2, c1 - half, "corridor"))
-    for side in ("south", "north"):
-        ya, yb = (OUTER_WALL_M / 2, c0) if side == "south" else (c1, d - OUTER_WALL_M / 2)
-        y_wall = c0 if side == "south" else c1
-        y_in = ya if side == "north" else yb  # the room side of the corridor wall
-        if rng.random() < spec.open_plan_prob:
-            plan.rooms.append(
-                Room(
-                    k,
-                    OUTER_WALL_M / 2,
-                    ya + (half if side == "north" else 0),
-                    w - OUTER_WALL_M / 2,
-                    yb - (half if side == "south" else 0),
-                    "open",
-                )
-            )
-            # a low wall stub at each end keeps the corridor readable; the middle is open
-            cw = _Wall(k, 0, y_wall, w, y_wall, PARTITION_M, False)
-            cw.openings.append(_Opening(1.5, w - 1.5, 0.0, ch, "gap"))
-            plan.walls.append(cw)
-            continue
-        bounds = [0.0]
-        while bounds[-1] + spec.room_width_m[0] * 2 < w:
-            bounds.append(bounds[-1] + float(rng.uniform(*spec.room_width_m)))
-        bounds.append(w)
-        if bounds[-1] - bounds[-2] < spec.room_width_m[0]:
-            bounds.pop(-2)
-        corridor_wall = _Wall(k, 0, y_wall, w, y_wall, PARTITION_M, False)
-        for i, (a, c) in enumerate(itertools.pairwise(bounds)):
-            x0 = a + (OUTER_WALL_M / 2 if i == 0 else half)
-            x1 = c - (OUTER_WALL_M / 2 if i == len(bounds) - 2 else half)
-            y0 = ya + (half if side == "north" else 0)
-            y1 = yb - (half if side == "south" else 0)
-            plan.rooms.append(Room(k, x0, y0, x1, y1, "room"))
-            dw = float(rng.uniform(*DOOR_W))
-            u = float(rng.uniform(x0 + 0.3, max(x0 + 0.31, x1 - dw - 0.3)))
-            corridor_wall.openings.append(_Opening(u, u + dw, 0.0, DOOR_H, "door"))
-            sgn = 1.0 if side == "north" else -1.0
-            zones.append((u - 0.2, min(y_in, y_in + sgn * 1.4), u + dw + 0.2, max(y_in, y_in + sgn * 1.4)))
-            zones.append((u - 0.2, min(y_in, y_in - sgn * 1.0), u + dw + 0.2, max(y_in, y_in - sgn * 1.0)))
-            if i > 0:
-                part = _Wall(k, a, ya, a, yb, PARTITION_M, False)
-                if rng.random() < 0.3 and yb - ya > 2.5:  # a door to the neighbouring room
-                    v = float(rng.uniform(0.4, yb - ya - 1.5))
-                    part.openings.append(_Opening(v, v + 0.95, 0.0, DOOR_H, "door"))
-                    zones.append((a - 1.2, ya + v - 0.2, a + 1.2, ya + v + 1.15))
-                part.broken = rng.random() < spec.broken_wall_prob
-                plan.walls.append(part)
-        plan.walls.append(corridor_wall)
-
-
-# ---------------------------------------------------------------------------------------------- structure
-
-
 def _structure(
-    plan: _Plan,
+    plan: Plan,
     b: MeshBuilder,
     rng: np.random.Generator,
     r_damage: np.random.Generator,
@@ -474,8 +308,8 @@ def _damaged_column(
 
 
 def _wall(
-    plan: _Plan,
-    wall: _Wall,
+    plan: Plan,
+    wall: Wall,
     b: MeshBuilder,
     rng: np.random.Generator,
     r_damage: np.random.Generator,
@@ -523,7 +357,7 @@ def _wall(
 
 
 def _wall_box(
-    wall: _Wall, b: MeshBuilder, inst: int, color: tuple[int, int, int], mat, u0: float, u1: float, z0: float, z1: float
+    wall: Wall, b: MeshBuilder, inst: int, color: tuple[int, int, int], mat, u0: float, u1: float, z0: float, z1: float
 ) -> None:
     if u1 - u0 < 1e-3 or z1 - z0 < 1e-3:
         return
@@ -543,8 +377,8 @@ def _wall_box(
 
 
 def _broken_wall(
-    plan: _Plan,
-    wall: _Wall,
+    plan: Plan,
+    wall: Wall,
     b: MeshBuilder,
     rng: np.random.Generator,
     inst: int,
@@ -574,7 +408,7 @@ def _broken_wall(
     debris_pile(b, rng, pos, z0, 0.5 * (c - a) * 0.6 + 0.3, 0.5, wall.story, plan.spec.structure_colors)
 
 
-def _door(plan: _Plan, wall: _Wall, o: _Opening, b: MeshBuilder, rng: np.random.Generator) -> None:
+def _door(plan: Plan, wall: Wall, o: Opening, b: MeshBuilder, rng: np.random.Generator) -> None:
     k, z0 = wall.story, plan.floor_z[wall.story]
     inst = b.new_instance(C.DOOR)
     col = fur.WOOD_TONES[int(rng.integers(len(fur.WOOD_TONES)))]
@@ -608,7 +442,7 @@ def _door(plan: _Plan, wall: _Wall, o: _Opening, b: MeshBuilder, rng: np.random.
     )
 
 
-def _window(plan: _Plan, wall: _Wall, o: _Opening, b: MeshBuilder, rng: np.random.Generator) -> None:
+def _window(plan: Plan, wall: Wall, o: Opening, b: MeshBuilder, rng: np.random.Generator) -> None:
     k, z0 = wall.story, plan.floor_z[wall.story]
     inst = b.new_instance(C.WINDOW)
     frame_col = (230, 230, 230) if rng.random() < 0.6 else (70, 70, 75)
@@ -631,177 +465,7 @@ def _window(plan: _Plan, wall: _Wall, o: _Opening, b: MeshBuilder, rng: np.rando
     b.add_box((x, y, z0 + (o.z0 + o.z1) / 2), size, cls=C.WINDOW, instance=inst, material=GLASS, story=k)
 
 
-# ---------------------------------------------------------------------------------------------- contents
-
-
-class _Free:
-    """Axis-aligned footprints already taken in a room."""
-
-    def __init__(self, room: Room, taken: list[tuple[float, float, float, float]]) -> None:
-        self.room = room
-        self.rects = list(taken)
-
-    def fits(self, x0: float, y0: float, x1: float, y1: float, margin: float = 0.05) -> bool:
-        r = self.room
-        if x0 < r.x0 + margin or y0 < r.y0 + margin or x1 > r.x1 - margin or y1 > r.y1 - margin:
-            return False
-        return all(x1 <= a or x0 >= c or y1 <= bb or y0 >= d for a, bb, c, d in self.rects)
-
-    def take(self, x0: float, y0: float, x1: float, y1: float) -> None:
-        self.rects.append((x0, y0, x1, y1))
-
-
-def _footprint(piece: fur.Piece, x: float, y: float, yaw: float, pad: float = 0.0) -> tuple[float, ...]:
-    hx, hy = piece.half_extent
-    c, s = abs(np.cos(yaw)), abs(np.sin(yaw))
-    ex, ey = hx * c + hy * s + pad, hx * s + hy * c + pad
-    return (x - ex, y - ey, x + ex, y + ey)
-
-
-def _furnish(plan: _Plan, room: Room, b: MeshBuilder, rng: np.random.Generator, r_damage: np.random.Generator) -> None:
-    spec = plan.spec
-    k = room.story
-    z0 = plan.floor_z[k]
-    cw = plan.column_w / 2 + 0.05
-    taken = [(x - cw, y - cw, x + cw, y + cw) for x in plan.xs for y in plan.ys]
-    taken += plan.door_zones.get(k, [])
-    free = _Free(room, taken)
-    shade = float(rng.uniform(0.8, 1.15))
-    area = (room.x1 - room.x0) * (room.y1 - room.y0)
-    messy = spec.tip_prob
-
-    def put(
-        piece: fur.Piece, x: float, y: float, yaw: float, z: float = 0.0, check: bool = True, pad: float = 0.05
-    ) -> bool:
-        fp = _footprint(piece, x, y, yaw, pad)
-        if check and not free.fits(*fp):
-            return False
-        rot = rotation_z(yaw)
-        zz = z0 + z
-        if messy and r_damage.random() < messy and z == 0.0:
-            # thrown about: shifted, turned, some tipped over onto a side
-            yaw2 = yaw + r_damage.normal(0, 0.5)
-            if piece.cls in (C.CHAIR, C.TABLE, C.BOOKCASE, C.CLUTTER) and r_damage.random() < 0.5:
-                hy = piece.half_extent[1]
-                tip = rotation_z(yaw2) @ rotation_xyz(np.pi / 2 * r_damage.choice([-1, 1]), 0, 0)
-                rot, zz = tip, z0 + hy
-            else:
-                rot = rotation_z(yaw2)
-        fur.place(b, piece, fur.pose(x, y, zz, rot), story=k, shade=shade)
-        free.take(*fp)
-        return True
-
-    def along_wall(piece: fur.Piece, tries: int = 20) -> bool:
-        for _ in range(tries):
-            side = int(rng.integers(4))
-            hx, hy = piece.half_extent
-            if (room.x1 - room.x0 if side < 2 else room.y1 - room.y0) < 2 * hx + 0.02:
-                continue
-            if side == 0:
-                x, y, yaw = rng.uniform(room.x0 + hx, room.x1 - hx), room.y0 + hy + 0.06, 0.0
-            elif side == 1:
-                x, y, yaw = rng.uniform(room.x0 + hx, room.x1 - hx), room.y1 - hy - 0.06, np.pi
-            elif side == 2:
-                x, y, yaw = room.x0 + hy + 0.06, rng.uniform(room.y0 + hx, room.y1 - hx), -np.pi / 2
-            else:
-                x, y, yaw = room.x1 - hy - 0.06, rng.uniform(room.y0 + hx, room.y1 - hx), np.pi / 2
-            if put(piece, x, y, yaw, pad=0.0):
-                return True
-        return False
-
-    f = spec.furniture
-    tables: list[tuple[float, float, float, fur.Piece]] = []
-    if room.kind == "corridor":
-        for _ in range(rng.poisson(0.1 * area * spec.clutter / 4)):
-            along_wall(fur.clutter(rng))
-        if rng.random() < 0.3 * f:
-            along_wall(fur.bookcase(rng))
-        if rng.random() < 0.2 * f:
-            along_wall(fur.sofa(rng))
-        return
-    for _ in range(rng.poisson(area / 22 * f)):
-        along_wall(fur.bookcase(rng))
-    if rng.random() < 0.6:
-        _board(plan, room, b, rng, shade)
-    if rng.random() < 0.35 * f:
-        along_wall(fur.sofa(rng))
-    n_tables = rng.poisson(area / (7 if room.kind == "open" else 9) * f)
-    for _ in range(n_tables):
-        piece = fur.table(rng)
-        for _try in range(15):
-            yaw = float(rng.choice([0.0, np.pi / 2]) + rng.normal(0, 0.05))
-            x = rng.uniform(room.x0 + 0.9, room.x1 - 0.9)
-            y = rng.uniform(room.y0 + 0.9, room.y1 - 0.9)
-            if put(piece, x, y, yaw, pad=0.55):  # room for the chairs and to walk around
-                tables.append((x, y, yaw, piece))
-                break
-    for x, y, yaw, piece in tables:
-        hx, hy = piece.half_extent
-        rot = rotation_z(yaw)
-        for side in (-1, 1):
-            for _ in range(int(rng.integers(0, 3))):
-                local = np.array([rng.uniform(-hx + 0.3, hx - 0.3), side * (hy + rng.uniform(0.2, 0.35)), 0])
-                cx, cy = (rot @ local)[:2] + np.array([x, y])
-                chair_yaw = yaw + (0 if side < 0 else np.pi) + rng.normal(0, 0.3)
-                put(fur.chair(rng), float(cx), float(cy), float(chair_yaw), check=False)
-        for _ in range(rng.poisson(1.2 * spec.clutter)):  # things on the table
-            item = fur.clutter(rng)
-            if item.height > 0.8 or item.half_extent[0] > hx or item.half_extent[1] > hy:
-                continue
-            local = np.array(
-                [
-                    rng.uniform(-hx + item.half_extent[0], hx - item.half_extent[0]),
-                    rng.uniform(-hy + item.half_extent[1], hy - item.half_extent[1]),
-                    0,
-                ]
-            )
-            cx, cy = (rot @ local)[:2] + np.array([x, y])
-            zt = max(p.center[2] + p.size[2] / 2 for p in piece.parts)
-            fur.place(
-                b,
-                item,
-                fur.pose(float(cx), float(cy), z0 + zt, rotation_z(yaw + rng.normal(0, 0.4))),
-                story=k,
-                shade=shade,
-            )
-    for _ in range(rng.poisson(area / 10 * spec.clutter)):
-        along_wall(fur.clutter(rng), tries=6)
-
-
-def _board(plan: _Plan, room: Room, b: MeshBuilder, rng: np.random.Generator, shade: float) -> None:
-    """A board on an inside wall, clear of the doors."""
-    piece = fur.board(rng)
-    hx = piece.half_extent[0]
-    zones = plan.door_zones.get(room.story, [])
-    for _ in range(10):
-        side = int(rng.integers(4))
-        horizontal = side < 2
-        lo, hi = (room.x0, room.x1) if horizontal else (room.y0, room.y1)
-        if hi - lo < 2 * hx + 0.4:
-            continue
-        u = rng.uniform(lo + hx + 0.2, hi - hx - 0.2)
-        if side == 0:
-            x, y, yaw = u, room.y0, 0.0
-        elif side == 1:
-            x, y, yaw = u, room.y1, np.pi
-        elif side == 2:
-            x, y, yaw = room.x0, u, -np.pi / 2
-        else:
-            x, y, yaw = room.x1, u, np.pi / 2
-        edge = (x, y)
-        if _near_outer(plan, edge) or any(a - hx <= x <= c + hx and bb - hx <= y <= d + hx for a, bb, c, d in zones):
-            continue
-        fur.place(b, piece, fur.pose(x, y, plan.floor_z[room.story], rotation_z(yaw)), story=room.story, shade=shade)
-        return
-
-
-def _near_outer(plan: _Plan, xy: tuple[float, float]) -> bool:
-    x, y = xy
-    m = OUTER_WALL_M
-    return x < m or y < m or x > plan.width - m or y > plan.depth - m
-
-
-def _damage_stories(plan: _Plan, b: MeshBuilder, rng: np.random.Generator) -> None:
+def _damage_stories(plan: Plan, b: MeshBuilder, rng: np.random.Generator) -> None:
     """Debris piles on every story: in rooms, and against a corridor wall (narrowing but not closing it)."""
     spec = plan.spec
     for k in range(len(plan.story_h)):
@@ -824,11 +488,8 @@ def _damage_stories(plan: _Plan, b: MeshBuilder, rng: np.random.Generator) -> No
                 debris_pile(b, rng, (x, y), plan.floor_z[k], r, rng.uniform(0.3, 1.0), k, spec.structure_colors)
 
 
-# ---------------------------------------------------------------------------------------------- cracks
-
-
 def _cracks(
-    plan: _Plan,
+    plan: Plan,
     rng: np.random.Generator,
     candidates: list[tuple[int, int, np.ndarray, np.ndarray, int, bool]],
     motions: list,
@@ -887,7 +548,7 @@ def _cracks(
     return out
 
 
-def _move_crack(crack: CrackTruth, level: int, span: bool, motions: list, plan: _Plan, caster: Raycaster) -> CrackTruth:
+def _move_crack(crack: CrackTruth, level: int, span: bool, motions: list, plan: Plan, caster: Raycaster) -> CrackTruth:
     """The crack moved with its element: deformed like its level or story, then laid back onto the face
     (the mesh interpolates a sheared face linearly between its corners, the deformation is bilinear)."""
     n = len(crack.polyline)

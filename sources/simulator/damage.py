@@ -110,7 +110,24 @@ def debris_pile(
 ) -> int:
     """A mound of broken concrete pieces (and some rebar), one debris instance."""
     inst = builder.new_instance(SemanticClass.DEBRIS)
-    n = int(np.clip(radius * radius * 25 * rng.uniform(0.7, 1.3), 12, 120))
+    # the body of the mound: a few broken slab chunks leaning on each other
+    for _ in range(int(np.clip(radius * 3, 2, 6))):
+        r, a = radius * rng.uniform(0, 0.45), rng.uniform(0, 2 * np.pi)
+        size = (radius * rng.uniform(0.5, 1.0), radius * rng.uniform(0.4, 0.8), rng.uniform(0.12, 0.3))
+        rot = rotation_xyz(*rng.uniform(-0.5, 0.5, 2), rng.uniform(-np.pi, np.pi))
+        col = colors[int(rng.integers(len(colors)))]
+        builder.add_box(
+            (center[0] + r * np.cos(a), center[1] + r * np.sin(a), floor_z + height * rng.uniform(0.15, 0.45)),
+            size,
+            cls=SemanticClass.DEBRIS,
+            instance=inst,
+            material=RUBBLE,
+            rotation=rot,
+            color=col,
+            story=story,
+            jitter_color=0.15,
+        )
+    n = int(np.clip(radius * radius * 45 * rng.uniform(0.7, 1.3), 15, 160))
     rho = radius * np.sqrt(rng.uniform(0, 1, n))
     phi = rng.uniform(0, 2 * np.pi, n)
     sizes = rng.uniform(0.06, 0.45, (n, 3)) * np.clip(1.2 - rho / radius, 0.3, 1.0)[:, None]

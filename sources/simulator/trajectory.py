@@ -25,7 +25,7 @@ PROBE_HEIGHTS_M: Final = (0.4, 0.9, 1.5)
 SENSOR_HEIGHT_M: Final = 0.9
 WALK_SPEED_MPS: Final = 1.0
 TURN_RATE_RAD_S: Final = 0.8  # fastest turn of a walking robot
-TURN_M_PER_RAD: Final = 0.5  # a distance-triggered scanner also scans every ~23 degrees of turning
+TURN_M_PER_RAD: Final = 1.5  # a distance-triggered scanner also scans every ~10 degrees of turning (at 0.25 m)
 WAYPOINT_TILE_M: Final = 5.0
 GAIT_HZ: Final = 1.8
 GAIT_TILT_DEG: Final = 0.6
@@ -113,6 +113,8 @@ def _grid_graph(grid: FreeGrid) -> csr_matrix:
         a, b = grid.free[ia, ja], grid.free[ib, jb]
         a_idx, b_idx = idx[ia, ja], idx[ib, jb]
         both = a & b
+        if di and dj:  # a diagonal step may not cut the corner of a blocked cell
+            both &= grid.free[ib, ja] & grid.free[ia, jb]
         pa, pb = a_idx[both], b_idx[both]
         length = np.hypot(di, dj) * CELL_M
         w = length * 0.5 * (penalty.reshape(-1)[pa] + penalty.reshape(-1)[pb])
@@ -267,13 +269,28 @@ def _room_goals(grid: FreeGrid, room: Room, tile_m: float = WAYPOINT_TILE_M) -> 
 
 
 def _smooth(xy: np.ndarray, grid: FreeGrid, window: int = 9) -> np.ndarray:
-    """Moving average of the cell path, kept only where it stays in free cells (closed loop)."""
+    """Moving average of the cell path (closed loop), kept only where the path between the samples stays in
+    free cells; near obstacles the raw cell path (which never cuts a blocked corner) is kept."""
     k = np.ones(window) / window
     pad = window // 2
     ext = np.r_[xy[-pad - 1 : -1], xy, xy[1 : pad + 1]]
     sm = np.stack([np.convolve(ext[:, i], k, mode="valid") for i in range(2)], axis=1)
-    ok = grid.is_free(sm)
-    return np.where(ok[:, None], sm, xy)
+    # smoothed points must sit in cells whose neighbours are all free, so short steps cannot clip a corner
+    inner = FreeGrid(
+        grid.story,
+        grid.floor_z,
+        grid.floor_matrix,
+        grid.clearance,
+        ndimage.binary_erosion(grid.free, np.ones((3, 3), bool)),
+    )
+    for grow in (0, 3, 9):
+        bad = ~inner.is_free(sm)
+        if grow and bad.any():
+            bad = ndimage.binary_dilation(bad, iterations=grow)
+        out = np.where(bad[:, None], xy, sm)
+        if grid.is_free(_resample(out, 0.005)[1]).all():
+            return out
+    return xy
 
 
 def _resample(xy: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -286,12 +303,16 @@ def _resample(xy: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     return ss, np.stack([np.interp(ss, s, xy[:, 0]), np.interp(ss, s, xy[:, 1])], axis=1)
 
 
-def _heading(xy: np.ndarray, ahead: int = 4) -> np.ndarray:
-    """Heading towards the point `ahead` samples on (0.2 m), unwrapped; at a dead end it flips by pi, which
-    the turn-rate limit turns into turning on the spot."""
+def _heading(xy: np.ndarray, ahead: int = 8, window: int = 9) -> np.ndarray:
+    """Heading towards the point `ahead` samples on (0.4 m), unwrapped and averaged over `window` samples
+    so the grid path's wiggles do not make the robot sway; at a dead end it flips by pi, which the
+    turn-rate limit turns into turning on the spot."""
     d = xy[np.minimum(np.arange(len(xy)) + ahead, len(xy) - 1)] - xy
     d[-ahead:] = d[-ahead - 1]
-    return np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    pad = window // 2
+    ext = np.r_[np.full(pad, yaw[0]), yaw, np.full(pad, yaw[-1])]
+    return np.convolve(ext, np.ones(window) / window, mode="valid")
 
 
 def segment_clear(scene: Scene, trajectory: Trajectory, times: np.ndarray) -> np.ndarray:
