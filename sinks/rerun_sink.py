@@ -230,7 +230,6 @@ class RerunSink(Sink):
         self._mcap_times = info.source_kind == "mcap"
         self.rec.send_recording_name(Path(info.source).name or info.source)
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, annotation_context(), static=True)
-        self.rec.log(L.ROBOT, rr.TransformAxes3D(0.5), static=True)
         what = f"source {info.source} ({info.source_kind}"
         what += f", topic {info.topic})" if info.topic else ")"
         what += f", {info.environment}, labeller {info.labeller or 'none'}"
@@ -352,6 +351,8 @@ class RerunSink(Sink):
         if frame.pose is None:
             return
         pose = frame.pose
+        if not self._trajectory and self._piece == 0:  # the robot's axes appear with its first pose
+            self.rec.log(L.ROBOT, rr.TransformAxes3D(0.5), static=True)
         self.rec.log(L.ROBOT, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
         self.rec.log(
             L.REGISTERED, rr.Points3D(_world_points(frame), colors=_scan_colors(frame.scan), radii=SCAN_RADIUS)
