@@ -27,6 +27,7 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
 from __future__ import annotations
 
 import socket
+import sys
 from pathlib import Path
 from typing import Final
 from urllib.parse import urlsplit
@@ -224,7 +225,13 @@ class RerunSink(Sink):
     def begin(self, info: RunInfo) -> None:
         # Outputs open only now: a run refused before its first scan leaves no empty recording behind.
         if self.spawn:
-            rr.spawn(port=SPAWN_PORT, connect=False, recording=self.rec)
+            beside = Path(sys.executable).with_name("rerun")  # the viewer of this environment, if not on PATH
+            rr.spawn(
+                port=SPAWN_PORT,
+                connect=False,
+                recording=self.rec,
+                executable_path=str(beside) if beside.exists() else None,
+            )
             self._sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
         self.rec.set_sinks(*self._sinks, default_blueprint=L.default_blueprint())
         self._mcap_times = info.source_kind == "mcap"
