@@ -86,6 +86,13 @@ def test_rerun_opens_the_file(velodyne_frames: list[Frame], tmp_path: Path) -> N
         [str(rerun), "mcap", "convert", str(path), "-o", str(rrd)], env=env, capture_output=True, text=True, timeout=120
     )
     assert done.returncode == 0, done.stderr
+    check = subprocess.run(
+        [str(rerun), "mcap", "check", "--full", str(path)], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert check.returncode == 0, check.stdout + check.stderr
+    assert "ros2_timestamp" in check.stdout
+    for topic in (POINTS_TOPIC, POSE_TOPIC):
+        assert any(line.startswith("ok") and topic in line for line in check.stdout.splitlines()), check.stdout
     rec = read_rrd(rrd)
     entity = POINTS_TOPIC.lstrip("/")
     rows = rec.rows(entity, "Points3D:positions")
