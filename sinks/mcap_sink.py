@@ -129,6 +129,7 @@ class McapSink(Sink):
             self._write(self._pending.pop(seq))
 
     def _write(self, frame: Frame) -> None:
+        self._open()  # also when `begin` was not called
         cols = labelled_columns(frame)
         if cols is None:
             return
@@ -142,5 +143,6 @@ class McapSink(Sink):
         self.scans_written += 1
 
     def _add(self, channel: int, log_time: int, data: bytes) -> None:
-        self._open().add_message(channel, log_time=log_time, data=data, publish_time=log_time, sequence=self._sequence)
+        assert self._writer is not None
+        self._writer.add_message(channel, log_time=log_time, data=data, publish_time=log_time, sequence=self._sequence)
         self._sequence += 1
