@@ -5,7 +5,8 @@
 Stages are generator functions chained lazily, so one frame at a time is in flight. The accumulated map
 goes to the sinks every `cfg.rerun.map_every` scans and once at the end. Sinks always get `close()`, and
 after a Ctrl-C also `end()` with what was processed, so their files stay valid; the result then says
-`interrupted`.
+`interrupted` and counts the scans that went through every stage (the one in flight may have reached the
+sinks for its first stages).
 """
 
 from __future__ import annotations
