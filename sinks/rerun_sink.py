@@ -209,6 +209,7 @@ class RerunSink(Sink):
         self.rec = rr.RecordingStream(application_id, batcher_config=batcher)
         rr.set_log_time_enabled(False, recording=self.rec)  # wall-clock time of logging says nothing here
         self._closed = False
+        self._started = False
         self._mcap_times = False
         self._scan: Scan | None = None  # the scan whose times are currently set
         self._stats_logged: set[str] = set()  # what was already logged for the scan `_stats_seq`
@@ -223,7 +224,20 @@ class RerunSink(Sink):
     # ------------------------------------------------------------------------------------------ hooks
 
     def begin(self, info: RunInfo) -> None:
-        # Outputs open only now: a run refused before its first scan leaves no empty recording behind.
+        self._start()
+        self._mcap_times = info.source_kind == "mcap"
+        self.rec.send_recording_name(Path(info.source).name or info.source)
+        what = f"source {info.source} ({info.source_kind}"
+        what += f", topic {info.topic})" if info.topic else ")"
+        what += f", {info.environment}, labeller {info.labeller or 'none'}"
+        self.rec.log(f"{L.LOG}/run", rr.TextLog(what, level="INFO"), static=True)
+
+    def _start(self) -> None:
+        """Open the outputs (in `begin`, or with the first data when a command has no run to begin): a run
+        refused before its first scan leaves no empty recording behind."""
+        if self._started:
+            return
+        self._started = True
         if self.spawn:
             beside = Path(sys.executable).with_name("rerun")  # the viewer of this environment, if not on PATH
             rr.spawn(
@@ -234,15 +248,10 @@ class RerunSink(Sink):
             )
             self._sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
         self.rec.set_sinks(*self._sinks, default_blueprint=L.default_blueprint())
-        self._mcap_times = info.source_kind == "mcap"
-        self.rec.send_recording_name(Path(info.source).name or info.source)
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, annotation_context(), static=True)
-        what = f"source {info.source} ({info.source_kind}"
-        what += f", topic {info.topic})" if info.topic else ")"
-        what += f", {info.environment}, labeller {info.labeller or 'none'}"
-        self.rec.log(f"{L.LOG}/run", rr.TextLog(what, level="INFO"), static=True)
 
     def stage(self, frame: Frame, stage: Stage) -> None:
+        self._start()
         self._set_time(frame.scan)
         if stage is Stage.RAW:
             self._log_raw(frame)
@@ -255,6 +264,7 @@ class RerunSink(Sink):
         self._log_stats(frame)
 
     def map_update(self, cloud: LabelledCloud, seq: int) -> None:
+        self._start()
         if self._last_map_seq is not None and seq - self._last_map_seq < self.cfg.map_every:
             return
         if self._scan is None or self._scan.seq != seq:
@@ -263,6 +273,7 @@ class RerunSink(Sink):
         self._last_map_seq = seq
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+        self._start()
         static = self._scan is None
         colors = _instance_colors(cloud.instance_ids) if cloud.instance_ids is not None else cloud.colors
         extra = [rr.AnyValues(instance_id=cloud.instance_ids)] if cloud.instance_ids is not None else []
@@ -294,6 +305,7 @@ class RerunSink(Sink):
             self._set_time(self._scan)
 
     def damage(self, cracks: list[Crack], crack_points: LabelledCloud | None, stories: list[Story]) -> None:
+        self._start()
         static = self._scan is None
         if crack_points is not None and len(crack_points):
             extra = (
@@ -311,6 +323,7 @@ class RerunSink(Sink):
             self._log_stories(stories, static)
 
     def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
+        self._start()
         if len(final_map):
             self._log_map(final_map)
         text = (

@@ -143,8 +143,7 @@ def test_map_relogs_only_changed_tiles(tmp_path: Path) -> None:
 
 def test_refined_growth_and_damage_layers(tmp_path: Path) -> None:
     path = tmp_path / "layers.rrd"
-    sink = RerunSink(path, False, None, RerunConfig())
-    sink.begin(RunInfo("cloud.ply", "files"))
+    sink = RerunSink(path, False, None, RerunConfig())  # an on-demand command: no run, no `begin`
     rng = np.random.default_rng(1)
     pts = rng.uniform(0, 2, (500, 3))
     inst = (pts[:, 0] > 1).astype(np.uint32) + 1
@@ -165,6 +164,7 @@ def test_refined_growth_and_damage_layers(tmp_path: Path) -> None:
     assert "25.0 cm long" in label and "4.0 mm wide" in label
     assert "5.0 mm" in rec.texts(L.DRIFT, "Arrows3D:labels", static=True)[0]
     assert f"{L.STORIES}/s1" in rec.entities
+    assert "AnnotationContext:context" in rec.components(L.WORLD)
 
 
 def test_embedding_colours_are_stable_across_scans() -> None:
