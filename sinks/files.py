@@ -86,22 +86,20 @@ class FileExportSink(Sink):
         self._tum: TextIO | None = None
         self._kitti: TextIO | None = None
         self._written: set[int] = set()
+        self._poses_closed = False
         self.poses_written = 0
 
     def begin(self, info: RunInfo) -> None:
         self._info = info
-        try:
-            self._tum = open(self.tum_path, "w")  # noqa: SIM115 (kept open for the whole run)
-            self._kitti = open(self.kitti_path, "w")  # noqa: SIM115
-        except OSError as exc:
-            raise OutputError(f"cannot write: {exc.strerror}", self.folder) from None
+        self._open_poses()
 
     def stage(self, frame: Frame, stage: Stage) -> None:
-        if stage is not Stage.REGISTERED or frame.seq in self._written or self._tum is None or self._kitti is None:
+        if stage is not Stage.REGISTERED or frame.seq in self._written:
             return
         pose = frame.stamp_pose if frame.stamp_pose is not None else frame.pose
-        if pose is None:
+        if pose is None or not self._open_poses():
             return
+        assert self._tum is not None and self._kitti is not None
         self._written.add(frame.seq)
         self._tum.write(tum_line(frame.scan.stamp_ns, pose))
         self._kitti.write(kitti_line(pose))
@@ -133,8 +131,21 @@ class FileExportSink(Sink):
     def close(self) -> None:
         self._close_poses()
 
+    def _open_poses(self) -> bool:
+        """Open the pose files once (in `begin`, or with the first pose); False once they were closed."""
+        if self._poses_closed:
+            return False
+        if self._tum is None or self._kitti is None:
+            try:
+                self._tum = open(self.tum_path, "w")  # noqa: SIM115 (kept open for the whole run)
+                self._kitti = open(self.kitti_path, "w")  # noqa: SIM115
+            except OSError as exc:
+                raise OutputError(f"cannot write: {exc.strerror}", self.folder) from None
+        return True
+
     def _close_poses(self) -> None:
         for f in (self._tum, self._kitti):
             if f is not None:
                 f.close()
+                self._poses_closed = True
         self._tum = self._kitti = None
