@@ -95,12 +95,12 @@ class LRGNetConfig(_Section):
     seed: int = 0
     weights: str | None = None
     # Baselines run beside LRGNet (pipeline.refine.baselines)
-    baseline_normal_angle_deg: float = 20.0  # threshold region growing: normals within this angle
+    baseline_normal_angle_deg: float = 10.0  # threshold region growing: normals within this angle (tuned)
     baseline_color_distance: float = 0.12  # ... and RGB (0..1) closer than this
     smoothness_k: int = 16  # Rabbani et al.: neighbours per point
     smoothness_angle_deg: float = 10.0
     smoothness_curvature_percentile: float = 98.0  # points above this curvature percentile stop growing
-    fpfh_similarity: float = 0.9  # cosine similarity of FPFH histograms to link touching voxels
+    fpfh_similarity: float = 0.98  # cosine similarity of FPFH histograms to link touching voxels (tuned likewise)
     mcpnet_similarity: float = 0.9  # cosine similarity of MCPNet embeddings (the clustering stage's β indoor)
 
 
