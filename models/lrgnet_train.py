@@ -25,7 +25,7 @@ from torch.nn import functional as F
 from models.lrgnet import LRGNet, num_parameters, save_weights
 from pipeline.cloud_io import check_output
 from pipeline.config import LRGNetConfig
-from pipeline.refine.features import VoxelCloud, region_centre, voxelise
+from pipeline.refine.features import VoxelCloud, canonical_normals, region_centre, voxelise
 from pipeline.types import LabelledCloud
 
 log = logging.getLogger(__name__)
@@ -40,12 +40,12 @@ VAL_ROOMS: Final = 2  # rooms of each training building kept out of training for
 MISTAKE_PROBS: Final = (0.2, 0.3, 0.4)
 MISTAKE_DECAY: Final = 0.01
 TRAJECTORY_STEPS: Final = 30  # cap on the steps of one simulated growth
-TRAIN_POINTS: Final = 256  # I = J while training (inference pools 512): twice the gradient steps per hour
+TRAIN_POINTS: Final = 128  # I = J while training (inference pools up to 512): 4x the gradient steps per hour
 SAMPLES_PER_ROOM: Final = 400  # cap, so that large rooms do not crowd out the others
 EPOCHS: Final = 3
 BATCH: Final = 100
 LEARNING_RATE: Final = 1e-3
-MAX_SAMPLES: Final = {"office": 12_000, "disaster": 12_000, "all": 16_000}  # keeps training within an hour
+MAX_SAMPLES: Final = {"office": 15_000, "disaster": 15_000, "all": 20_000}  # keeps training within an hour
 VAL_SAMPLES: Final = 1_000
 
 
@@ -189,12 +189,12 @@ def batch_tensors(s: Samples, idx: np.ndarray, rng: np.random.Generator | None) 
     """Normalised inputs and labels of a batch; with `rng`, a random flip/90° rotation about z per sample."""
     xi = np.stack([s.features[s.scene[i]][s.inliers[i]] for i in idx])
     xn = np.stack([s.features[s.scene[i]][s.neighbours[i]] for i in idx])
-    c = s.centre[idx]
+    c = s.centre[idx].copy()
+    if rng is not None:
+        _augment(xi, xn, c, rng)
     for x in (xi, xn):
         x[:, :, 0:2] -= c[:, None, 0:2]
         x[:, :, 6:13] -= c[:, None, 2:9]
-    if rng is not None:
-        xi, xn = _augment(xi, xn, rng)
     return (
         torch.from_numpy(xi),
         torch.from_numpy(xn),
@@ -203,20 +203,27 @@ def batch_tensors(s: Samples, idx: np.ndarray, rng: np.random.Generator | None) 
     )
 
 
-def _augment(xi: np.ndarray, xn: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Flip x, flip y and swap x/y per sample: the 8 symmetries of the square (flips and 90° rotations)."""
+def _augment(xi: np.ndarray, xn: np.ndarray, centre: np.ndarray, rng: np.random.Generator) -> None:
+    """In place: flip x, flip y and swap x/y per sample (the 8 symmetries of the square: flips and 90°
+    rotations) on the raw features and the region's reference; normals get their canonical sign back."""
     b = len(xi)
     flip_x, flip_y, swap = (rng.random(b) < 0.5 for _ in range(3))
-    for x in (xi, xn):
-        for sel, (xyz, room, normal) in ((flip_x, (0, 3, 9)), (flip_y, (1, 4, 10))):
-            x[sel, :, xyz] *= -1
-            x[sel, :, normal] *= -1
-            x[sel, :, room] = 1.0 - x[sel, :, room]
-        for a, c in ((0, 1), (3, 4), (9, 10)):
-            tmp = x[swap, :, a].copy()
-            x[swap, :, a] = x[swap, :, c]
-            x[swap, :, c] = tmp
-    return xi, xn
+    cn = centre[:, None, 5:8]  # the reference normal, as a one-point array
+    cxy = centre[:, None, 0:2]
+    for x, (xy, room, normal) in ((xi, (0, 3, 9)), (xn, (0, 3, 9)), (cxy, (0, None, None)), (cn, (None, None, 0))):
+        for axis, sel in ((0, flip_x), (1, flip_y)):
+            for col in (xy, normal):
+                if col is not None:
+                    x[sel, :, col + axis] *= -1
+            if room is not None:
+                x[sel, :, room + axis] = 1.0 - x[sel, :, room + axis]
+        for col in (xy, room, normal):
+            if col is not None:
+                x[swap, :, col], x[swap, :, col + 1] = x[swap, :, col + 1].copy(), x[swap, :, col].copy()
+    for x, col in ((xi, 9), (xn, 9), (cn, 0)):
+        x[:, :, col : col + 3] = canonical_normals(x[:, :, col : col + 3])
+    centre[:, 0:2] = cxy[:, 0]
+    centre[:, 5:8] = cn[:, 0]
 
 
 def losses(net: LRGNet, xi: torch.Tensor, xn: torch.Tensor, rm: torch.Tensor, add: torch.Tensor) -> torch.Tensor:

@@ -18,7 +18,7 @@ from pipeline.errors import InputError
 from pipeline.refine import baseline_cloud, refine_cloud, scores, weight_settings
 from pipeline.refine.baselines import Baseline
 from pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
-from pipeline.refine.grow import Grower
+from pipeline.refine.grow import Grower, Growth
 from pipeline.types import LabelledCloud
 
 
@@ -44,6 +44,17 @@ def _cloud(parts: list[np.ndarray], rng: np.random.Generator) -> LabelledCloud:
     palette = rng.integers(40, 220, (len(parts) + 1, 3))
     colors = np.clip(palette[inst] + rng.normal(0, 5, (len(pts), 3)), 0, 255).astype(np.uint8)
     return LabelledCloud(pts, colors, None, np.full(len(pts), 12, np.uint16), inst)
+
+
+def tiny_room(seed: int = 0) -> LabelledCloud:
+    """A 1.5 x 1.2 m corner (floor, wall) with a box: ~500 voxels."""
+    rng = np.random.default_rng(seed)
+    parts = [
+        _plane((0, 0, 0), (1.5, 0, 0), (0, 1.2, 0), 0.05, rng),
+        _plane((0, 0, 0), (1.5, 0, 0), (0, 0, 1.0), 0.05, rng),
+        _box((0.6, 0.5, 0.05), (1.0, 0.9, 0.4), 0.05, rng),
+    ]
+    return _cloud(parts, rng)
 
 
 def small_room(seed: int = 0) -> LabelledCloud:
@@ -202,15 +213,18 @@ def test_small_segments_take_the_label_of_their_nearest_neighbour() -> None:
     assert len(np.unique(res.instance_ids)) == 2
 
 
-def test_search_is_seeded_and_deterministic(weights_file: Path) -> None:
-    cloud = small_room()
-    net, _ = load_weights(weights_file, weight_settings(LRGNetConfig()))
+def test_search_is_seeded_and_deterministic() -> None:
+    cloud = apart_boxes()
+    net = biased_net(add=0.5, remove=-2.0)  # P(add) ~ 0.6, P(remove) ~ 0.1: sampled decisions vary
     for search in ("restart", "beam"):
-        cfg = LRGNetConfig(search=search, restarts=3, max_steps=3, seed=5)
-        a = refine_cloud(cloud, cfg, net=net)
-        b = refine_cloud(cloud, cfg, net=net)
+        cfg = LRGNetConfig(search=search, restarts=3, max_steps=4, seed=5)
+        a, b = refine_cloud(cloud, cfg, net=net), refine_cloud(cloud, cfg, net=net)
         assert np.array_equal(a.instance_ids, b.instance_ids)
         assert a.steps_per_object == b.steps_per_object
+    vc = voxelise(cloud, 0.1)
+    start = Growth(np.array([0]))
+    grown = [Grower(vc, net, LRGNetConfig(seed=s))._run(start, sample=True, record=False).region for s in (5, 5, 6)]
+    assert np.array_equal(grown[0], grown[1]) and not np.array_equal(grown[0], grown[2])
 
 
 # ----------------------------------------------------------------------------- training data
@@ -244,14 +258,14 @@ def test_baselines_segment_a_simple_room(name: Baseline) -> None:
 
 # ----------------------------------------------------------------------------- the command
 def test_refine_command_json(tmp_path: Path, weights_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    ply = write_cloud(tmp_path / "room.ply", small_room())
+    ply = write_cloud(tmp_path / "room.ply", tiny_room())
     out = tmp_path / "refined.ply"
     args = ["refine", str(ply), "--truth", "--json", "--weights", str(weights_file), "--set", "lrgnet.max_steps=4"]
     assert main([*args, "--no-baselines", "--out", str(out)]) == 0
     report = json.loads(capsys.readouterr().out)
     for key in ("nmi", "ami", "ari", "precision", "recall", "mean_iou", "segments", "steps_per_object"):
         assert key in report
-    assert 0 <= report["nmi"] <= 1 and report["points"] == len(small_room())
+    assert 0 <= report["nmi"] <= 1 and report["points"] == len(tiny_room())
     assert out.is_file()
     assert main([*args, "--no-baselines", "--out", str(out)]) == 2  # exists without --force
     assert "already exists" in capsys.readouterr().err
@@ -261,7 +275,7 @@ def test_refine_command_bad_input(tmp_path: Path, weights_file: Path, capsys: py
     assert main(["refine", str(tmp_path / "missing.ply")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("aftershock: error:") and "missing.ply" in err and err.count("\n") == 1
-    room = small_room()
+    room = tiny_room()
     room.instance_ids = None
     ply = write_cloud(tmp_path / "nolabels.ply", room)
     assert main(["refine", str(ply), "--truth", "--weights", str(weights_file)]) == 2

@@ -64,10 +64,18 @@ def _neighbour_table(keys: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return np.where(hit, order[pos], -1)
 
 
+def canonical_normals(normals: np.ndarray) -> np.ndarray:
+    """Normals with their largest component positive: one sign for a whole wall as for a whole floor (orienting
+    to +z alone leaves the sign of a wall's normals to noise, and the per-step median difference would see it)."""
+    n = np.asarray(normals)
+    big = np.take_along_axis(n, np.abs(n).argmax(axis=-1)[..., None], axis=-1)
+    return np.where(big < 0, -n, n)
+
+
 def _pca_over_neighbourhood(
     raw: np.ndarray, voxel_of_point: np.ndarray, adjacency: np.ndarray, m: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Normals (oriented to +z) and curvature = smallest eigenvalue / sum from the raw points of 27 voxels."""
+    """Normals (canonical sign) and curvature = smallest eigenvalue / sum from the raw points of 27 voxels."""
     centre = raw.mean(axis=0)
     p = raw - centre  # conditioning: second moments about the scene centre
     count = np.bincount(voxel_of_point, minlength=m).astype(np.float64)
@@ -82,8 +90,7 @@ def _pca_over_neighbourhood(
     mean = s1 / n[:, None]
     cov = s2 / n[:, None, None] - mean[:, :, None] * mean[:, None, :]
     evals, evecs = np.linalg.eigh(cov)
-    normals = evecs[:, :, 0]
-    normals[normals[:, 2] < 0] *= -1
+    normals = canonical_normals(evecs[:, :, 0])
     total = evals.sum(axis=1)
     curvature = np.where(total > 1e-12, evals[:, 0].clip(min=0) / np.where(total > 1e-12, total, 1), 0.0)
     curvature[n < 3] = 1.0
