@@ -380,7 +380,7 @@ class RerunSink(Sink):
         self._trajectory.append(pose[:3, 3].copy())
         self.rec.log(
             f"{L.TRAJECTORY}/p{self._piece}",
-            rr.LineStrips3D([np.asarray(self._trajectory)], colors=TRAJECTORY_COLOR, radii=rr.Radius.ui_points(4.0)),
+            rr.LineStrips3D([np.asarray(self._trajectory)], colors=TRAJECTORY_COLOR, radii=rr.Radius.ui_points(2.5)),
         )
         if len(self._trajectory) >= TRAJECTORY_PIECE:
             self._trajectory = [self._trajectory[-1]]
