@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test lint bench bench-mcpnet bench-cracks bench-lrgnet train screenshot clean
+.PHONY: setup demo test lint bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -30,8 +30,13 @@ lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
+# Speed and memory of the whole stream (VLP-16 simulated missions with Rerun recording to a file).
 bench: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py
+
+# Decoding, simulation and sink throughput.
+bench-io: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_sources.py tests/bench_simulator.py tests/bench_sinks.py
 
 bench-mcpnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_mcpnet.py
@@ -41,6 +46,8 @@ bench-cracks: setup
 
 bench-lrgnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_lrgnet.py
+
+bench-all: bench bench-io bench-mcpnet bench-cracks bench-lrgnet
 
 train: setup
 	$(BIN)/aftershock train mcpnet
