@@ -71,6 +71,7 @@ def test_speed_of_the_stream_with_a_recording(mission: Path, tmp_path: Path) -> 
         assert s.scans == SCANS and rrd.stat().st_size > 0
         scores = evaluate_map(result.vmap)
         rows.append((name, s, cpu / s.scans * 1e3, wall, scores, result.trajectory, rrd.stat().st_size))
+        rrd.unlink()  # hundreds of MB
 
     print(f"\n\nStreaming pipeline, simulated VLP-16 mission ({SCANS} scans, {MISSION}), Rerun recording to a file")
     print(f"load average while measuring: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
@@ -126,11 +127,13 @@ def test_peak_memory_of_a_long_mission(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     got = json.loads(proc.stdout.strip().splitlines()[-1])
+    size_mb = rrd.stat().st_size / 1e6
+    rrd.unlink()  # gigabytes
     print(f"\n\nPeak memory, {MEMORY_SCANS}-scan simulated VLP-16 mission ({uri}), region-growing, Rerun to a file")
     print(
         f"scans {got['scans']}, map voxels {got['map_voxels']}, voxel map {got['map_mb']:.1f} MB, "
         f"peak RSS {got['peak_rss_mb']:.0f} MB (limit {MEMORY_LIMIT_GB * 1024:.0f} MB), "
-        f"recording {rrd.stat().st_size / 1e6:.0f} MB, {got['wall_s']:.0f} s"
+        f"recording {size_mb:.0f} MB, {got['wall_s']:.0f} s"
     )
     assert got["scans"] == MEMORY_SCANS
     assert got["peak_rss_mb"] < MEMORY_LIMIT_GB * 1024
