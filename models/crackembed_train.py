@@ -1,9 +1,10 @@
 """Train CrackEmbed on simulated cracked concrete (never on the evaluation masks): `aftershock train crackembed`.
 
-Each training element is a column corner (two concrete faces meeting at an edge, randomly oriented) scanned
-in lines at a random spacing, with cracks (recessed, darker polylines 2–40 mm wide) and spalls (rough dark
-blobs). Every face, crack and spall is its own surface; a triplet loss pulls points of one surface together
-and pushes different surfaces apart. The crack labels of the simulation are used only as surface identities.
+Training elements are the simulator's cracked columns, walls and slabs (`sources.simulator.cracks`, seeds
+below 100; seeds from 100 on are kept for testing on unseen elements), each at a random spacing of 2–8 mm and
+cropped to a 0.6 m window around one of its cracks. The intact concrete (with its stains and pits) is one
+surface, each crack another; a triplet loss pulls points of one surface together and pushes different
+surfaces apart. The simulation's crack marks serve only as surface identities.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import torch
 
 from models.crackembed import WEIGHTS, CrackEmbed, point_inputs, save_weights
 from pipeline.cloud_io import check_output
+from pipeline.damage.measure import components
 
 EPOCHS: Final = 30
 STEPS_PER_EPOCH: Final = 20
@@ -25,72 +27,27 @@ SURFACES_PER_BATCH: Final = 16
 POINTS_PER_SURFACE: Final = 16
 MARGIN: Final = 1.0  # on squared distances between unit vectors (0..4), as the study's triplet loss
 NEIGHBOURHOOD_M: Final = 0.01
+KINDS: Final = ("column", "wall", "slab")
+WINDOW_M: Final = 0.6  # each training element is cropped to a window this wide around one of its cracks
+HELD_OUT_SEEDS: Final = 100  # element seeds from here on are never trained on: they test unseen elements
 
 
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance (N,) from 2-D points to the nearest of the segments a→b (S, 2)."""
-    ab = b - a
-    t = np.clip(((p[:, None, :] - a[None]) * ab[None]).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0, 1)
-    closest = a[None] + t[..., None] * ab[None]
-    return np.linalg.norm(p[:, None, :] - closest, axis=-1).min(axis=1)
+def training_element(seed: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Points, colours and surface ids (0 = intact concrete, stains and pits included; k = the k-th crack) of
+    a simulated cracked element (seeds below `HELD_OUT_SEEDS`), cropped to a random window, and its spacing."""
+    from sources.simulator.cracks import cracked_element
 
-
-def _random_rotation(rng: np.random.Generator) -> np.ndarray:
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q *= np.sign(np.diag(r))
-    return q if np.linalg.det(q) > 0 else -q
-
-
-def cracked_corner(rng: np.random.Generator, spacing_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Points (N, 3), colours (N, 3) uint8, surface ids (N,) and crack mask (N,) of one simulated element."""
-    width, height = rng.uniform(0.3, 0.5), rng.uniform(0.4, 0.7)
-    line = spacing_m * rng.uniform(1.0, 3.0)  # scan-line spacing
-    base = np.array([0.85, 0.8, 0.7]) * rng.uniform(0.6, 1.1) + rng.normal(0, 0.04, 3)
-    pts_all, col_all, sid_all, crack_all = [], [], [], []
-    next_id = 0
-    for face in range(2):
-        u, v = np.meshgrid(np.arange(0, width, spacing_m), np.arange(0, height, line), indexing="ij")
-        uv = np.stack([u.ravel(), v.ravel()], axis=1) + rng.normal(0, 0.2 * spacing_m, (u.size, 2))
-        depth = rng.normal(0, 0.0008, len(uv))  # range noise
-        shade = rng.uniform(0.8, 1.1) * (1 + 0.15 * (uv[:, 1] / height - 0.5) * rng.normal())
-        rgb = base[None] * shade[:, None] + rng.normal(0, 0.03, (len(uv), 3))
-        sid = np.full(len(uv), next_id)
-        next_id += 1
-        crack = np.zeros(len(uv), bool)
-        for _ in range(rng.integers(1, 4)):  # cracks: random-walk polylines
-            n_seg = 8
-            start = rng.uniform([0, 0], [width, height])
-            heading = rng.uniform(0, 2 * np.pi) + np.cumsum(rng.normal(0, 0.4, n_seg))
-            step = rng.uniform(0.1, 0.6) / n_seg
-            nodes = start + np.cumsum(np.c_[np.cos(heading), np.sin(heading)] * step, axis=0)
-            nodes = np.vstack([start, nodes])
-            w = rng.uniform(0.002, 0.04)
-            hit = _segment_distance(uv, nodes[:-1], nodes[1:]) <= max(w / 2, 0.5 * spacing_m)
-            depth[hit] -= rng.uniform(0.003, 0.03) * rng.uniform(0.3, 1.0, hit.sum())
-            rgb[hit] *= rng.uniform(0.35, 0.75)
-            rgb[hit] += rng.normal(0, 0.06, (hit.sum(), 3))
-            sid[hit] = next_id
-            next_id += 1
-            crack |= hit
-        if rng.random() < 0.5:  # a spall: rough, darker, browner blob
-            centre, radius = rng.uniform([0, 0], [width, height]), rng.uniform(0.02, 0.08)
-            hit = np.linalg.norm(uv - centre, axis=1) < radius
-            depth[hit] -= rng.uniform(0.0, 0.02, hit.sum())
-            rgb[hit] *= rng.uniform(0.4, 0.8) * np.array([1.0, 0.9, 0.8])
-            sid[hit] = next_id
-            next_id += 1
-            crack |= hit
-        if face == 0:  # x = depth, y = u, z = v; the second face turns about the shared edge
-            pts = np.stack([-depth, uv[:, 0], uv[:, 1]], axis=1)
-        else:
-            pts = np.stack([uv[:, 0], -depth, uv[:, 1]], axis=1)
-        pts_all.append(pts)
-        col_all.append(rgb)
-        sid_all.append(sid)
-        crack_all.append(crack)
-    pts = np.concatenate(pts_all) @ _random_rotation(rng).T
-    colors = (np.clip(np.concatenate(col_all), 0, 1) * 255).astype(np.uint8)
-    return pts, colors, np.concatenate(sid_all), np.concatenate(crack_all)
+    kind = KINDS[seed % len(KINDS)]
+    spacing = float(rng.uniform(0.002, 0.008))
+    cloud, mask, _ = cracked_element(kind, seed, spacing)
+    pts = cloud.points
+    crack_pts = pts[mask] if mask.any() else pts
+    centre = crack_pts[rng.integers(len(crack_pts))]
+    keep = np.all(np.abs(pts - centre) <= WINDOW_M / 2, axis=1)
+    pts, colors, mask = pts[keep], cloud.colors[keep], mask[keep]
+    sid = np.zeros(len(pts), np.int64)
+    sid[mask] = components(pts[mask], max(3.0 * spacing, 0.01), 1)
+    return pts, colors, sid, spacing
 
 
 def _batch_all_triplet(emb: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
@@ -107,20 +64,21 @@ def _batch_all_triplet(emb: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
     return vals.sum() / active
 
 
-def build_data(seed: int, elements: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Network inputs and global surface ids of all points of `elements` simulated elements."""
+def build_data(seed: int, elements: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Network inputs and global surface ids of all points of `elements` simulated elements, and the ids of
+    the intact surfaces."""
     rng = np.random.default_rng(seed)
-    nbs, owns, sids = [], [], []
+    nbs, owns, sids, intact = [], [], [], []
     offset = 0
-    for _ in range(elements):  # one iteration per simulated element
-        spacing = float(rng.uniform(0.002, 0.01))
-        pts, colors, sid, _ = cracked_corner(rng, spacing)
+    for i in range(elements):  # one iteration per simulated element
+        pts, colors, sid, spacing = training_element(seed * elements + i, rng)
         nb, own = point_inputs(pts, colors, NEIGHBOURHOOD_M, spacing)
         nbs.append(nb)
         owns.append(own)
         sids.append(sid + offset)
+        intact.append(offset)
         offset += int(sid.max()) + 1
-    return np.concatenate(nbs), np.concatenate(owns), np.concatenate(sids)
+    return np.concatenate(nbs), np.concatenate(owns), np.concatenate(sids), np.asarray(intact)
 
 
 def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict:
@@ -130,9 +88,11 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
     torch.manual_seed(seed)
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    nb, own, sid = build_data(seed, ELEMENTS)
+    nb, own, sid, intact_ids = build_data(seed, ELEMENTS)
     uniq, inverse, counts = np.unique(sid, return_inverse=True, return_counts=True)
-    usable = np.flatnonzero(counts >= 4)
+    usable = counts >= 4
+    is_intact = np.isin(uniq, intact_ids)
+    intact, cracks = np.flatnonzero(usable & is_intact), np.flatnonzero(usable & ~is_intact)
     members = np.split(np.argsort(inverse, kind="stable"), np.cumsum(counts)[:-1])
     model = CrackEmbed()
     opt = torch.optim.Adam(model.parameters(), lr=1e-3)
@@ -142,7 +102,12 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
     for _ in range(n_epochs):
         epoch_loss = 0.0
         for _ in range(STEPS_PER_EPOCH):
-            chosen = rng.choice(usable, size=min(SURFACES_PER_BATCH, len(usable)), replace=False)
+            # A quarter of each batch is intact concrete (one surface per element, far rarer than cracks).
+            n_intact = min(SURFACES_PER_BATCH // 4, len(intact))
+            chosen = np.r_[
+                rng.choice(intact, size=n_intact, replace=False),
+                rng.choice(cracks, size=min(SURFACES_PER_BATCH - n_intact, len(cracks)), replace=False),
+            ]
             idx = np.concatenate([rng.choice(members[s], size=POINTS_PER_SURFACE) for s in chosen])
             emb = model(torch.from_numpy(nb[idx]), torch.from_numpy(own[idx]))
             loss = _batch_all_triplet(emb, torch.from_numpy(inverse[idx]))

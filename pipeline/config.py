@@ -106,7 +106,7 @@ class LRGNetConfig(_Section):
 
 class CrackConfig(_Section):
     resolution_m: float | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
-    features: str = "shade"  # the best measured on the real crack data (see tests/bench_cracks.py)
+    features: str = "shade+crackembed"  # best balance of real elements and unseen simulated ones (bench_cracks)
     detector: str = "isolation-forest"
     neighbourhood_m: float = 0.01
     severe_width_m: float = 0.0032  # 1/8 inch
@@ -115,6 +115,7 @@ class CrackConfig(_Section):
     normal_cell_m: float = 0.015  # normals/curvature: PCA over the 3 x 3 x 3 block of these voxels (the study's)
     fpfh_radius_m: float = 0.02
     smooth_cell_m: float = 0.02  # detector scores averaged over the 3 x 3 x 3 block of these voxels; 0 = off
+    smooth_keep_raw: bool = True  # a point's own score also counts (thin cracks survive the smoothing)
     link_m: float = 0.01  # crack points closer than this (or 2 x the spacing) belong to one crack
     max_spacing_m: float = 0.02  # coarser clouds are refused as too sparse to measure cracks
     fit_points: int = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all

@@ -45,7 +45,7 @@ def register(app: typer.Typer) -> None:
         input: Path = typer.Argument(..., help="Element or map as PLY/PCD (e.g. a column cut out of a scan)."),
         truth: Path | None = typer.Option(None, help="Per-point boolean crack mask (.npy) to score against."),
         features: str | None = typer.Option(
-            None, help="rgb | intensity | normal | curvature | fpfh | crackembed | shade (default: config)."
+            None, help="rgb | intensity | normal | curvature | fpfh | crackembed | shade | shade+crackembed."
         ),
         detector: str | None = typer.Option(
             None,

@@ -27,6 +27,7 @@ CLUSTERS_PER_FEATURE: Final[dict[str, int]] = {
     "fpfh": 2,
     "crackembed": 5,
     "shade": 2,
+    "shade+crackembed": 5,
 }
 
 
@@ -161,9 +162,14 @@ def detect(
     return _DETECTORS[kind](x, fit, seed, clusters)
 
 
-def smooth(points: np.ndarray, detection: Detection, cell_m: float) -> Detection:
-    """The mean score over the 3×3×3 block of `cell_m` voxels around each point (0 = no smoothing)."""
+def smooth(points: np.ndarray, detection: Detection, cell_m: float, keep_raw: bool = False) -> Detection:
+    """The mean score over the 3×3×3 block of `cell_m` voxels around each point (0 = no smoothing).
+    Smoothing joins the speckled detections of a wide damaged zone but averages a crack a few millimetres
+    wide away; with `keep_raw` a point's score is the larger of its own and the smoothed one, so both stay."""
     if cell_m <= 0:
         return detection
     sums = block_sums(points, np.stack([detection.score, np.ones(len(points))], axis=1), cell_m)
-    return Detection(sums[:, 0] / sums[:, 1], detection.threshold)
+    score = sums[:, 0] / sums[:, 1]
+    if keep_raw:
+        score = np.maximum(score, detection.score)
+    return Detection(score, detection.threshold)

@@ -22,7 +22,8 @@ _MAD_TO_SIGMA: Final = 1.4826
 
 
 class FeatureSet(StrEnum):
-    """The feature sets compared in the study (`rgb` … `crackembed`) and `shade`, our default."""
+    """The feature sets compared in the study (`rgb` … `crackembed`), `shade` (one-sided darkness) and both
+    of ours together."""
 
     RGB = "rgb"
     INTENSITY = "intensity"
@@ -31,6 +32,7 @@ class FeatureSet(StrEnum):
     FPFH = "fpfh"
     CRACKEMBED = "crackembed"
     SHADE = "shade"
+    SHADE_CRACKEMBED = "shade+crackembed"
 
 
 def unit_colors(cloud: LabelledCloud) -> np.ndarray:
@@ -95,6 +97,10 @@ def _shade(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
     return np.clip(-np.stack([grey, darkest], axis=1), 0.0, None)
 
 
+def _shade_crackembed(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
+    return np.concatenate([_shade(cloud, cfg), _crackembed(cloud, cfg)], axis=1)
+
+
 _FEATURES: Final[dict[FeatureSet, Callable[[LabelledCloud, CrackConfig], np.ndarray]]] = {
     FeatureSet.RGB: _rgb,
     FeatureSet.INTENSITY: lambda cloud, cfg: _intensity(cloud),
@@ -103,6 +109,7 @@ _FEATURES: Final[dict[FeatureSet, Callable[[LabelledCloud, CrackConfig], np.ndar
     FeatureSet.FPFH: _fpfh,
     FeatureSet.CRACKEMBED: _crackembed,
     FeatureSet.SHADE: _shade,
+    FeatureSet.SHADE_CRACKEMBED: _shade_crackembed,
 }
 
 

@@ -155,7 +155,7 @@ def find_cracks(
     detection = detect(
         x, det, seed=cfg.seed, fit_points=cfg.fit_points, clusters=CLUSTERS_PER_FEATURE.get(feats.value, 2)
     )
-    detection = smooth(part.points, detection, cfg.smooth_cell_m)
+    detection = smooth(part.points, detection, cfg.smooth_cell_m, cfg.smooth_keep_raw)
     mask = detection.mask
     timings["detect"] = time.perf_counter() - t0
     t0 = time.perf_counter()
