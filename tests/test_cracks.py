@@ -216,3 +216,30 @@ def test_assess_damage_on_a_dense_simulated_column() -> None:
     out = json.loads(json.dumps(report.to_json()))
     assert all(c["length_m"] > 0 and c["width_m"] > 0 for c in out["cracks"])
     assert out["stories"] == [] or isinstance(out["stories"], list)
+
+
+def test_extract_elements_by_size_and_box() -> None:
+    """An unlabelled scene (floor, wall, a 0.4 x 0.4 x 2.6 m column): region growing on normals and colour
+    cuts it into elements; picking by the column's size keeps only the column's faces."""
+    from pipeline.damage.components import COLUMN_DIMS_M, extract_elements
+
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform(-2, 2, (40000, 2)), np.zeros(40000)]
+    wall = np.c_[np.full(20000, -1.9), rng.uniform(-2, 2, 20000), rng.uniform(0, 2.6, 20000)]
+    t, z, side = rng.uniform(-0.2, 0.2, 20000), rng.uniform(0.02, 2.6, 20000), rng.integers(0, 4, 20000)
+    cx = np.where(side == 0, 0.2, np.where(side == 1, -0.2, t))
+    cy = np.where(side == 2, 0.2, np.where(side == 3, -0.2, t))
+    column = np.c_[cx + 0.5, cy, z]
+    pts = np.vstack([floor, wall, column]) + rng.normal(0, 0.002, (80000, 3))
+    colors = np.repeat(np.array([[90, 90, 90], [200, 200, 190], [170, 160, 150]], np.uint8), [40000, 20000, 20000], 0)
+    cloud = LabelledCloud(pts, colors)
+    cfg = CrackConfig()
+    every = extract_elements(cloud, cfg)
+    assert len(every) >= 3
+    columns = extract_elements(cloud, cfg, dims=COLUMN_DIMS_M)
+    assert 1 <= len(columns) <= 4
+    picked = np.concatenate(columns)
+    assert np.all(picked >= 60000)  # only column points
+    assert len(picked) > 0.8 * 20000
+    boxed = extract_elements(cloud, cfg, box=np.array([[0.25, -0.25, 0.01], [0.75, 0.25, 3.0]]))
+    assert len(boxed) == 1 and np.all(boxed[0] >= 60000)

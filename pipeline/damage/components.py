@@ -27,18 +27,26 @@ def in_box(points: np.ndarray, box: np.ndarray) -> np.ndarray:
 
 
 def extents(points: np.ndarray) -> np.ndarray:
-    """Sizes (3,) of a point set along its principal axes, largest first."""
-    centred = points - points.mean(axis=0)
-    _, _, vt = np.linalg.svd(centred[:: max(1, len(points) // 20000)], full_matrices=False)
-    proj = centred @ vt.T
-    return np.sort(proj.max(axis=0) - proj.min(axis=0))[::-1]
+    """Sizes (3,) of a point set, largest first: along its principal axis, then the sides of the minimum-area
+    rectangle of its cross-section (a square column's cross-section has no principal direction of its own)."""
+    from pipeline.damage.measure import min_area_rectangle
+
+    sample = points[:: max(1, len(points) // 20000)]
+    centred = sample - sample.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    along = centred @ vt[0]
+    rect = min_area_rectangle(centred @ vt[1:].T)
+    return np.sort([along.max() - along.min(), rect.length, rect.width])[::-1]
 
 
 def matches_dims(points: np.ndarray, dims: tuple[float, float, float], tolerance: float) -> bool:
-    """True when each principal extent is within ±`tolerance` (relative) of the expected size (any order)."""
+    """True when the two largest principal extents are within ±`tolerance` (relative) of the two largest
+    expected sizes and the smallest is not larger than expected: the whole element or one of its faces
+    (region growing on normals splits a column into its faces)."""
     want = np.sort(np.asarray(dims, np.float64))[::-1]
     got = extents(points)
-    return bool(np.all(np.abs(got - want) <= tolerance * np.maximum(want, 0.05)))
+    close = np.abs(got[:2] - want[:2]) <= tolerance * np.maximum(want[:2], 0.05)
+    return bool(np.all(close) and got[2] <= want[2] * (1 + tolerance) + 0.02)
 
 
 def segment(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
