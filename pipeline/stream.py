@@ -133,17 +133,23 @@ def instances_per_class(cloud: LabelledCloud) -> dict[str, int]:
     return {CLASS_NAMES[c]: int(majority[c]) for c in np.flatnonzero(majority)}
 
 
+MapHook = Callable[[LabelledCloud, Sequence[Sink]], None]
+
+
 def run_stream(
     scans: Iterable[Scan],
     cfg: Config,
     sinks: Sequence[Sink],
     info: RunInfo,
     notice: Callable[[str], None] | None = None,
+    on_final_map: MapHook | None = None,
 ) -> StreamResult:
-    """Run the whole stream over `scans`; see the module docstring."""
+    """Run the whole stream over `scans`; see the module docstring. `on_final_map` runs the on-demand
+    analyses (LRGNet refinement, damage) over the final map and hands their results to the sinks; it is
+    skipped after an interruption."""
     # The stages do many small (N x 3) products: BLAS threads only add wake-up costs (KISS-ICP has its own).
     with threadpool_limits(1, user_api="blas"):
-        return _run(scans, cfg, sinks, info, notice)
+        return _run(scans, cfg, sinks, info, notice, on_final_map)
 
 
 def _run(
@@ -152,6 +158,7 @@ def _run(
     sinks: Sequence[Sink],
     info: RunInfo,
     notice: Callable[[str], None] | None,
+    on_final_map: MapHook | None = None,
 ) -> StreamResult:
     notice = notice or (lambda text: print(f"aftershock: {text}", file=sys.stderr))
     t_start = perf_counter()
@@ -207,6 +214,12 @@ def _run(
         except KeyboardInterrupt:
             summary.interrupted = True
             notice(f"interrupted after {summary.scans} scans; finishing the outputs")
+        on_demand_error: BaseException | None = None
+        if on_final_map is not None and not summary.interrupted and len(vmap):
+            try:
+                on_final_map(vmap.to_cloud(), sinks)
+            except (Exception, KeyboardInterrupt) as exc:  # the run's own outputs are still finished below
+                on_demand_error = exc
         with _no_interrupts():
             final = vmap.to_cloud()
             if seqs and last_map_seq != seqs[-1]:
@@ -215,6 +228,8 @@ def _run(
             _fill_summary(summary, vmap, final, timings, perf_counter() - t_start)
             for sink in sinks:
                 sink.end(summary, final)
+        if on_demand_error is not None:
+            raise on_demand_error
     finally:
         with _no_interrupts():
             _close_all(sinks)

@@ -4,6 +4,7 @@ after each stage, and the accumulated map and on-demand results when they are re
 from __future__ import annotations
 
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 
@@ -32,8 +33,14 @@ class Sink:
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         """LRGNet's re-segmentation of the map; `steps` = (inlier indices, neighbour indices) of one object's growth."""
 
-    def damage(self, cracks: list[Crack], crack_points: LabelledCloud | None, stories: list[Story]) -> None:
-        """Cracks and story drift/tilt found on the map."""
+    def damage(
+        self,
+        cracks: list[Crack],
+        crack_points: LabelledCloud | None,
+        stories: list[Story],
+        report: dict[str, Any] | None = None,
+    ) -> None:
+        """Cracks and story drift/tilt found on the map; `report` is the whole damage report as JSON data."""
 
     def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
         """After the last frame (also after an interruption), with what was measured."""

@@ -5,6 +5,9 @@
 - `poses_tum.txt`: `timestamp tx ty tz qx qy qz qw` per scan (TUM RGB-D format, seconds since the epoch).
 - `poses_kitti.txt`: the first three rows of each 4 x 4 pose, row-major, 12 numbers per line (KITTI odometry).
 - `summary.json`: the `RunSummary` fields, the source, and per-class instance and point counts of the map.
+- `refined.ply` (with `run --refine`): the map with LRGNet's class-agnostic `instance_id`.
+- `damage.json` (with `run --damage`): the damage report — cracks with length and width, stories with drift
+  and tilt, and what could not be measured.
 
 Poses are the sensor poses at the scan stamps, written line by line as the scans are registered, so an
 interrupted run keeps every pose it computed; the map and summary are written at the end (also after Ctrl-C).
@@ -15,14 +18,14 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 from pathlib import Path
-from typing import Final, TextIO
+from typing import Any, Final, TextIO
 
 import numpy as np
 
 from pipeline.classes import CLASS_NAMES, NUM_CLASSES, class_colors
 from pipeline.cloud_io import check_output, write_cloud
 from pipeline.errors import OutputError
-from pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
+from pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
 from sinks.base import Sink, Stage
 from sources.pointcloud2 import matrix_to_quaternion
 
@@ -30,6 +33,8 @@ MAP_FILE: Final = "map.ply"
 TUM_FILE: Final = "poses_tum.txt"
 KITTI_FILE: Final = "poses_kitti.txt"
 SUMMARY_FILE: Final = "summary.json"
+REFINED_FILE: Final = "refined.ply"
+DAMAGE_FILE: Final = "damage.json"
 
 
 def tum_line(stamp_ns: int, pose: np.ndarray) -> str:
@@ -73,7 +78,7 @@ class FileExportSink(Sink):
     created from `begin` on.
     """
 
-    def __init__(self, folder: Path, force: bool = False) -> None:
+    def __init__(self, folder: Path, force: bool = False, refine: bool = False, damage: bool = False) -> None:
         self.folder = Path(folder)
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError("exists and is not a folder", self.folder)
@@ -81,6 +86,8 @@ class FileExportSink(Sink):
         self.tum_path = check_output(self.folder / TUM_FILE, force)
         self.kitti_path = check_output(self.folder / KITTI_FILE, force)
         self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
+        self.refined_path = check_output(self.folder / REFINED_FILE, force) if refine else None
+        self.damage_path = check_output(self.folder / DAMAGE_FILE, force) if damage else None
         self.force = force
         self._info: RunInfo | None = None
         self._tum: TextIO | None = None
@@ -127,6 +134,24 @@ class FileExportSink(Sink):
             self.summary_path.write_text(json.dumps(data, indent=2) + "\n")
         except OSError as exc:
             raise OutputError(f"cannot write: {exc.strerror}", self.summary_path) from None
+
+    def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+        if self.refined_path is not None:
+            write_cloud(self.refined_path, cloud, force=True)  # checked at construction
+
+    def damage(
+        self,
+        cracks: list[Crack],
+        crack_points: LabelledCloud | None,
+        stories: list[Story],
+        report: dict[str, Any] | None = None,
+    ) -> None:
+        if self.damage_path is None or report is None:
+            return
+        try:
+            self.damage_path.write_text(json.dumps(report, indent=2) + "\n")
+        except OSError as exc:
+            raise OutputError(f"cannot write: {exc.strerror}", self.damage_path) from None
 
     def close(self) -> None:
         self._close_poses()

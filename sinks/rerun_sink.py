@@ -29,7 +29,7 @@ from __future__ import annotations
 import socket
 import sys
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -304,7 +304,13 @@ class RerunSink(Sink):
         if self._scan is not None:
             self._set_time(self._scan)
 
-    def damage(self, cracks: list[Crack], crack_points: LabelledCloud | None, stories: list[Story]) -> None:
+    def damage(
+        self,
+        cracks: list[Crack],
+        crack_points: LabelledCloud | None,
+        stories: list[Story],
+        report: dict[str, Any] | None = None,
+    ) -> None:
         self._start()
         static = self._scan is None
         if crack_points is not None and len(crack_points):

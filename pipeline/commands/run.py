@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Iterator
-from dataclasses import asdict
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from time import perf_counter
 from typing import Any, Final
 
+import numpy as np
 import typer
 
 from pipeline.config import Config, load_config
@@ -20,7 +22,7 @@ from pipeline.errors import InputError
 from pipeline.label import FALLBACK_LABELLER, LABELLERS
 from pipeline.progress import enabled
 from pipeline.stream import StreamResult, run_stream
-from pipeline.types import RunInfo, Scan
+from pipeline.types import LabelledCloud, RunInfo, Scan
 from sinks.base import Sink
 
 LABELLER_HELP: Final = (
@@ -89,6 +91,8 @@ def make_sinks(
     mcap_out: Path | None,
     export: Path | None,
     force: bool,
+    refine: bool = False,
+    damage: bool = False,
 ) -> list[Sink]:
     """The sinks asked for; each checks its output path (exists without --force, not writable) right away."""
     sinks: list[Sink] = []
@@ -104,7 +108,7 @@ def make_sinks(
         if export is not None:
             from sinks.files import FileExportSink
 
-            sinks.append(FileExportSink(export, force))
+            sinks.append(FileExportSink(export, force, refine=refine, damage=damage))
     except BaseException:
         for sink in sinks:
             sink.close()
@@ -134,6 +138,80 @@ def result_dict(result: StreamResult, outputs: dict[str, str]) -> dict[str, Any]
     return out
 
 
+def parse_region(region: str | None) -> np.ndarray | None:
+    """`x0,y0,z0,x1,y1,z1` in metres -> (2, 3) min and max corners."""
+    if region is None:
+        return None
+    try:
+        values = [float(v) for v in region.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 6:
+        raise InputError(f"--region {region!r} is not six numbers x0,y0,z0,x1,y1,z1")
+    box = np.array(values).reshape(2, 3)
+    return np.stack([box.min(axis=0), box.max(axis=0)])
+
+
+@dataclass
+class OnDemand:
+    """The analyses run over the final map (`--refine`, `--damage`), limited to a region when one is given;
+    their results go to every sink and into the run's JSON."""
+
+    cfg: Config
+    refine: bool
+    damage: bool
+    region: np.ndarray | None
+    notice: Callable[[str], None]
+    results: dict[str, Any] = field(default_factory=dict)
+    net: Any = None
+
+    def __post_init__(self) -> None:
+        if self.refine:  # a missing or mismatched weights file is an error before any work, not after the run
+            from pipeline.refine import load_network
+
+            self.net = load_network(self.cfg.lrgnet)
+
+    def __call__(self, cloud: LabelledCloud, sinks: Sequence[Sink]) -> None:
+        if self.region is not None:
+            lo, hi = self.region
+            cloud = cloud.select(np.all((cloud.points >= lo) & (cloud.points <= hi), axis=1))
+            if len(cloud) == 0:
+                self.notice("the --region holds no map points; nothing to refine or assess")
+                return
+        if self.refine:
+            self._refine(cloud, sinks)
+        if self.damage:
+            self._damage(cloud, sinks)
+
+    def _refine(self, cloud: LabelledCloud, sinks: Sequence[Sink]) -> None:
+        from pipeline.refine import refine_cloud
+
+        self.notice(f"refining {len(cloud)} map points with LRGNet ({self.cfg.lrgnet.search})")
+        t0 = perf_counter()
+        result = refine_cloud(cloud, self.cfg.lrgnet, record_object=1, net=self.net)
+        refined = LabelledCloud(cloud.points, cloud.colors, cloud.intensity, cloud.class_ids, result.instance_ids)
+        for sink in sinks:
+            sink.refined(refined, result.steps)
+        self.results["refine"] = {
+            "objects": len(np.unique(result.instance_ids[result.instance_ids > 0])),
+            "points": len(cloud),
+            "seconds": round(perf_counter() - t0, 3),
+            "mean_steps_per_object": float(np.mean(result.steps_per_object)) if result.steps_per_object else 0.0,
+        }
+
+    def _damage(self, cloud: LabelledCloud, sinks: Sequence[Sink]) -> None:
+        from pipeline.damage.report import assess_damage
+
+        self.notice(f"assessing damage on {len(cloud)} map points")
+        t0 = perf_counter()
+        report = assess_damage(cloud, self.cfg)
+        data = report.to_json()
+        data["seconds"] = round(perf_counter() - t0, 3)
+        for sink in sinks:
+            sink.damage(report.cracks, report.crack_points, report.stories, data)
+        self.results["damage"] = data
+
+
 def print_human(result: StreamResult, outputs: dict[str, str]) -> None:
     s = result.summary
     state = "interrupted after" if s.interrupted else "processed"
@@ -160,6 +238,23 @@ def print_human(result: StreamResult, outputs: dict[str, str]) -> None:
             print(f"{key}: {outputs[key]}")
 
 
+def print_on_demand(results: dict[str, Any]) -> None:
+    if "refine" in results:
+        r = results["refine"]
+        print(f"refined: {r['objects']} objects from {r['points']} map points in {r['seconds']:.1f} s")
+    if "damage" in results:
+        d = results["damage"]
+        severe = d.get("severe_cracks", 0)
+        print(f"damage: {len(d['cracks'])} cracks ({severe} severe), {len(d['stories'])} story planes")
+        for story in d["stories"]:
+            print(
+                f"  story {story['index']} at {story['height_m']:.2f} m: drift {story['drift_mm']:.1f} mm, "
+                f"tilt {story['tilt_deg']:.3f}°"
+            )
+        for note in d.get("notes", []):
+            print(f"  note: {note}")
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def run(
@@ -179,22 +274,31 @@ def register(app: typer.Typer) -> None:
         end: float | None = typer.Option(None, "--end", help="Seconds from the log start to stop at."),
         every: int | None = typer.Option(None, "--every", help="Use every N-th scan."),
         max_scans: int | None = typer.Option(None, "--max-scans", help="Stop after this many scans."),
+        refine: bool = typer.Option(False, "--refine", help="Re-segment the final map into objects with LRGNet."),
+        damage: bool = typer.Option(False, "--damage", help="Cracks and story drift/tilt on the final map."),
+        region: str | None = typer.Option(
+            None, "--region", help="Limit --refine/--damage to the box x0,y0,z0,x1,y1,z1 (metres, map frame)."
+        ),
         force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or notices."),
         as_json: bool = typer.Option(False, "--json", help="Print the run summary as JSON."),
     ) -> None:
         """Register, label and cluster a LiDAR log scan by scan, streaming every stage to the outputs."""
         cfg = build_config(config, overrides, labeller, topic, start, end, every, max_scans)
+        box = parse_region(region)
         src = resolve_source(source)
         scans, info = open_scans(src, cfg, quiet)
-        sinks = make_sinks(cfg, save, spawn, connect, mcap_out, export, force)
-        outputs = {k: str(v) for k, v in (("rerun", save), ("mcap", mcap_out), ("export", export)) if v is not None}
         notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
-        result = run_stream(scans, cfg, sinks, info, notice)
+        on_demand = OnDemand(cfg, refine, damage, box, notice) if refine or damage else None
+        sinks = make_sinks(cfg, save, spawn, connect, mcap_out, export, force, refine, damage)
+        outputs = {k: str(v) for k, v in (("rerun", save), ("mcap", mcap_out), ("export", export)) if v is not None}
+        result = run_stream(scans, cfg, sinks, info, notice, on_demand)
+        extra = on_demand.results if on_demand is not None else {}
         if as_json:
-            print(json.dumps(result_dict(result, outputs), indent=2, default=_jsonable))
+            print(json.dumps(result_dict(result, outputs) | extra, indent=2, default=_jsonable))
         else:
             print_human(result, outputs)
+            print_on_demand(extra)
         if result.summary.interrupted:
             raise typer.Exit(130)
 
