@@ -62,6 +62,7 @@ class LabelConfig(_Section):
     indoor_range_m: float = 2.0  # horizontal range kept for labelling, as in the study
     outdoor_range_m: float = 10.0
     relabel_old_voxels: bool = False
+    instance_vote: bool = True  # MCPNet: an instance's voxels take the class they vote for (confidence-weighted)
     weights: str | None = None  # None = the shipped weights in models/weights
 
 
