@@ -55,6 +55,9 @@ class MCPNetLabeller:
         outdoor = cfg.label.environment is Environment.OUTDOOR
         self.beta = cfg.cluster.beta_outdoor if outdoor else cfg.cluster.beta_indoor
         self.relabel = cfg.label.relabel_old_voxels
+        self.vote = cfg.label.instance_vote
+        self.raw_class = np.zeros(0, np.int64)  # the network's own class per map row, before instance votes
+        self.raw_score = np.zeros(0, np.float32)
         self.rng = np.random.default_rng(0)  # which older voxels are relabelled
 
     @property
@@ -98,8 +101,9 @@ class MCPNetLabeller:
         return classes, scores, emb
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
-        """Label the voxels this scan opened (and, with `label.relabel_old_voxels`, re-class the older voxels
-        this scan saw again, now that more context surrounds them)."""
+        """Label the voxels this scan opened. Earlier voxels are updated as more of the scene arrives: with
+        `label.instance_vote` the instances this scan saw again take the class their voxels vote for; with
+        `label.relabel_old_voxels` older voxels seen again are re-predicted with the context they now have."""
         origin = frame.pose[:3, 3] if frame.pose is not None else np.zeros(3)
         world = frame.world_points if frame.world_points is not None else np.zeros((0, 3))
         floor_z = floor_height(world)
@@ -115,14 +119,42 @@ class MCPNetLabeller:
             rows_old = np.zeros(0, np.int64)
         classes, scores, emb = self.predict(vmap, np.r_[rows, rows_old], origin, floor_z, use_color)
         n = len(rows)
+        self._grow(len(vmap))
+        self.raw_class[rows], self.raw_score[rows] = classes[:n], scores[:n]
         vmap.class_ids[rows] = classes[:n]
         vmap.scores[rows] = scores[:n]
         vmap.embeddings[rows] = emb[:n]
         if len(rows_old):
             # An older voxel takes the new class only when the network is now surer of it.
-            better = scores[n:] > vmap.scores[rows_old]
+            better = scores[n:] > self.raw_score[rows_old]
+            self.raw_class[rows_old[better]] = classes[n:][better]
+            self.raw_score[rows_old[better]] = scores[n:][better]
             vmap.class_ids[rows_old[better]] = classes[n:][better]
-            vmap.scores[rows_old[better]] = scores[n:][better]
+        if self.vote and frame.keep is not None:
+            seen = vmap.lookup_points(world[frame.keep])
+            self.vote_instances(vmap, vmap.instance_ids[seen[seen >= 0]])
+
+    def _grow(self, n: int) -> None:
+        if n > len(self.raw_class):
+            size = max(n, 2 * len(self.raw_class), 4096)
+            self.raw_class = np.resize(self.raw_class, size)
+            self.raw_score = np.resize(self.raw_score, size)
+
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """Every voxel of these instances takes the class its instance's voxels vote for, each vote weighted
+        by the network's confidence (the network's own per-voxel predictions are kept for later votes)."""
+        touched = np.unique(instances)
+        touched = touched[touched > 0]
+        if not len(touched):
+            return
+        ids = vmap.instance_ids
+        members = np.flatnonzero(np.isin(ids, touched))
+        which = np.searchsorted(touched, ids[members])
+        c = self.net.num_classes
+        votes = np.bincount(
+            which * c + self.raw_class[members], weights=self.raw_score[members], minlength=len(touched) * c
+        )
+        vmap.class_ids[members] = votes.reshape(len(touched), c).argmax(axis=1)[which].astype(np.uint16)
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         """Link two voxels when their embeddings' cosine similarity exceeds β."""
