@@ -12,11 +12,14 @@ applied per sample at batch time.
 
 from __future__ import annotations
 
+import itertools
 import logging
+import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import torch
@@ -28,12 +31,16 @@ from pipeline.config import LRGNetConfig
 from pipeline.refine.features import VoxelCloud, canonical_normals, region_centre, voxelise
 from pipeline.types import LabelledCloud
 
+if TYPE_CHECKING:
+    from sources.simulator.scene import Room
+
 log = logging.getLogger(__name__)
 
 FAMILIES: Final = ("office", "disaster")
 # Buildings: training and held-out seeds are disjoint, fixed here so that results are comparable across runs.
-TRAIN_SEEDS: Final = {"office": (101, 102), "disaster": (201, 202)}
+TRAIN_SEEDS: Final = {"office": (101,), "disaster": (201,)}  # ~20 rooms each
 HELDOUT_SEEDS: Final = {"office": (901,), "disaster": (951,)}
+CACHE_VERSION: Final = 1
 RAW_SPACING_M: Final = 0.1  # spacing of the simulator's static cloud (one point per voxel at 0.1 m)
 ROOM_MARGIN_M: Final = 0.3  # a room is cut out with its walls, floor and ceiling
 VAL_ROOMS: Final = 2  # rooms of each training building kept out of training for validation
@@ -41,11 +48,11 @@ MISTAKE_PROBS: Final = (0.2, 0.3, 0.4)
 MISTAKE_DECAY: Final = 0.01
 TRAJECTORY_STEPS: Final = 30  # cap on the steps of one simulated growth
 TRAIN_POINTS: Final = 128  # I = J while training (inference pools up to 512): 4x the gradient steps per hour
-SAMPLES_PER_ROOM: Final = 400  # cap, so that large rooms do not crowd out the others
-EPOCHS: Final = 3
+SAMPLES_PER_ROOM: Final = 1000  # cap, so that large rooms do not crowd out the others
+EPOCHS: Final = 5
 BATCH: Final = 100
 LEARNING_RATE: Final = 1e-3
-MAX_SAMPLES: Final = {"office": 15_000, "disaster": 15_000, "all": 20_000}  # keeps training within an hour
+MAX_SAMPLES: Final = {"office": 20_000, "disaster": 20_000, "all": 20_000}  # keeps training within an hour
 VAL_SAMPLES: Final = 1_000
 
 
@@ -136,22 +143,58 @@ def simulate_growth(
     return out
 
 
+def cache_dir() -> Path:
+    """Where simulated buildings are kept between runs ($AFTERSHOCK_CACHE, else ~/.cache/aftershock)."""
+    return Path(os.environ.get("AFTERSHOCK_CACHE", Path.home() / ".cache" / "aftershock")) / "lrgnet"
+
+
 def building_rooms(family: str, seed: int) -> list[LabelledCloud]:
     """The simulator's labelled static cloud of one building, cut into its rooms (with their walls, floor and
-    ceiling), as the study's scenes were rooms."""
+    ceiling), as the study's scenes were rooms. The simulator is deterministic, so rooms are cached on disk."""
+    path = cache_dir() / f"{family}_{seed}_{RAW_SPACING_M:g}_v{CACHE_VERSION}.npz"
+    if path.is_file():
+        z = np.load(path)
+        bounds = np.r_[0, np.cumsum(z["sizes"])]
+        return [
+            LabelledCloud(z["points"][a:b], z["colors"][a:b], None, z["class_ids"][a:b], z["instance_ids"][a:b])
+            for a, b in itertools.pairwise(bounds)
+        ]
+    rooms = _cut_rooms(family, seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+    np.savez(
+        tmp,
+        sizes=np.array([len(r) for r in rooms]),
+        points=np.concatenate([r.points for r in rooms]),
+        colors=np.concatenate([r.colors for r in rooms]),
+        class_ids=np.concatenate([r.class_ids for r in rooms]),
+        instance_ids=np.concatenate([r.instance_ids for r in rooms]),
+    )
+    tmp.replace(path)  # atomic: parallel trainings may build the same building
+    return rooms
+
+
+def _cut_rooms(family: str, seed: int) -> list[LabelledCloud]:
     from sources.simulator import build_scene
 
     scene = build_scene(family, seed)
     cloud = scene.sample_static_cloud(RAW_SPACING_M, seed)
+    return cut_rooms(cloud, scene.rooms, scene.floor_z, scene.ceiling_z)
+
+
+def cut_rooms(
+    cloud: LabelledCloud, rooms: Sequence[Room], floor_z: Sequence[float], ceiling_z: Sequence[float]
+) -> list[LabelledCloud]:
+    """Every room of a building with a margin for its walls, floor and ceiling (rooms under 100 points dropped)."""
     p, mg = cloud.points, ROOM_MARGIN_M
-    rooms = []
-    for r in scene.rooms:
-        lo_z, hi_z = scene.floor_z[r.story] - mg, scene.ceiling_z[r.story] + mg
+    out = []
+    for r in rooms:
+        lo_z, hi_z = floor_z[r.story] - mg, ceiling_z[r.story] + mg
         inside = (p[:, 0] > r.x0 - mg) & (p[:, 0] < r.x1 + mg) & (p[:, 1] > r.y0 - mg) & (p[:, 1] < r.y1 + mg)
         inside &= (p[:, 2] > lo_z) & (p[:, 2] < hi_z)
         if inside.sum() >= 100:
-            rooms.append(cloud.select(inside))
-    return rooms
+            out.append(cloud.select(inside))
+    return out
 
 
 def make_samples(
@@ -309,44 +352,57 @@ def family_samples(family: str, cfg: LRGNetConfig, seed: int) -> tuple[Samples, 
     return make_samples(train_rooms, cfg, rng), make_samples(val_rooms, cfg, rng), len(train_rooms)
 
 
+def targets(out: Path | None) -> dict[str, tuple[Path, tuple[str, ...]]]:
+    """The three weights files: one per family beside `out`, and both families in `out` itself."""
+    from pipeline.refine import DEFAULT_WEIGHTS
+
+    main = Path(out) if out is not None else DEFAULT_WEIGHTS
+    result = {f: (main.with_name(f"{main.stem}_{f}{main.suffix}"), (f,)) for f in FAMILIES}
+    result["all"] = (main, FAMILIES)
+    return result
+
+
+def train_target(name: str, path: Path, families: tuple[str, ...], seed: int, epochs: int) -> dict[str, Any]:
+    """Train and write one weights file; the same seed gives the same file whether run alone or within `train`."""
+    from pipeline.refine import weight_settings
+
+    cfg = LRGNetConfig()
+    t0 = time.perf_counter()
+    data = [family_samples(f, cfg, seed) for f in families]
+    rng = np.random.default_rng([seed, 7])
+    train_set, val_set = data[0][0], data[0][1]
+    for tr, va, _ in data[1:]:
+        train_set, val_set = merge(train_set, tr), merge(val_set, va)
+    train_set, val_set = _cap(train_set, MAX_SAMPLES[name], rng), _cap(val_set, VAL_SAMPLES, rng)
+    data_seconds = time.perf_counter() - t0
+    net, figs = fit(train_set, val_set, seed, epochs)
+    figs = {
+        "families": list(families),
+        "train_buildings": {f: list(TRAIN_SEEDS[f]) for f in families},
+        "train_rooms": sum(d[2] for d in data),
+        "samples": len(train_set),
+        "val_samples": len(val_set),
+        "data_seconds": round(data_seconds, 1),
+        **figs,
+    }
+    settings = {**weight_settings(cfg), "train_points": TRAIN_POINTS, "seed": seed}
+    save_weights(path, net, settings, figs)
+    log.info("wrote %s", path)
+    last = figs["history"][-1] if figs["history"] else {}
+    return {"weights": str(path), "samples": len(train_set), "seconds": figs["train_seconds"], **last}
+
+
 def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict:
     """`aftershock train lrgnet`: both families into `out` (default the shipped lrgnet.pt), and one family each
     beside it (`<stem>_office.pt`, `<stem>_disaster.pt`)."""
-    from pipeline.refine import DEFAULT_WEIGHTS, weight_settings
-
     torch.set_num_threads(1)  # measured faster than 2 threads on the shared 2-core machine
-    main = Path(out) if out is not None else DEFAULT_WEIGHTS
-    targets = {f: (main.with_name(f"{main.stem}_{f}{main.suffix}"), (f,)) for f in FAMILIES}
-    targets["all"] = (main, FAMILIES)
-    for path, _ in targets.values():
+    jobs = targets(out)
+    for path, _ in jobs.values():
         check_output(path, force)
-    cfg = LRGNetConfig()
     n_epochs = epochs if epochs is not None else EPOCHS
     t0 = time.perf_counter()
-    data = {f: family_samples(f, cfg, seed) for f in FAMILIES}
-    result: dict[str, Any] = {
-        "parameters": num_parameters(LRGNet()),
-        "data_seconds": round(time.perf_counter() - t0, 1),
-    }
-    settings = {**weight_settings(cfg), "train_points": TRAIN_POINTS, "seed": seed}
-    for name, (path, fams) in targets.items():
-        rng = np.random.default_rng([seed, 7])
-        train_set, val_set = data[fams[0]][0], data[fams[0]][1]
-        for f in fams[1:]:
-            train_set, val_set = merge(train_set, data[f][0]), merge(val_set, data[f][1])
-        train_set, val_set = _cap(train_set, MAX_SAMPLES[name], rng), _cap(val_set, VAL_SAMPLES, rng)
-        net, figs = fit(train_set, val_set, seed, n_epochs)
-        figs = {
-            "families": list(fams),
-            "train_buildings": {f: list(TRAIN_SEEDS[f]) for f in fams},
-            "train_rooms": sum(data[f][2] for f in fams),
-            "samples": len(train_set),
-            "val_samples": len(val_set),
-            **figs,
-        }
-        save_weights(path, net, settings, figs)
-        last = figs["history"][-1] if figs["history"] else {}
-        result[name] = {"weights": str(path), "samples": len(train_set), "seconds": figs["train_seconds"], **last}
-        log.info("wrote %s", path)
+    result: dict[str, Any] = {"parameters": num_parameters(LRGNet())}
+    for name, (path, fams) in jobs.items():
+        result[name] = train_target(name, path, fams, seed, n_epochs)
     result["total_seconds"] = round(time.perf_counter() - t0, 1)
     return result

@@ -100,7 +100,7 @@ class Grower:
         return out
 
     def advance(self, state: Growth, sample: bool, record: bool) -> Growth:
-        """One step of growth, decisions thresholded at 0.5 (greedy) or drawn from the probabilities."""
+        """One step of growth, decisions thresholded (greedy, 0.5 by default) or drawn from the probabilities."""
         region = state.region
         candidates = self.neighbours(region)
         if len(candidates) == 0:
@@ -110,7 +110,7 @@ class Grower:
             rm = self.rng.random(len(p_rm)) < p_rm
             add = self.rng.random(len(p_add)) < p_add
         else:
-            rm, add = p_rm > 0.5, p_add > 0.5
+            rm, add = p_rm > self.cfg.remove_threshold, p_add > self.cfg.add_threshold
         loglik = state.loglik + float(
             np.log(np.where(rm, p_rm, 1 - p_rm) + _EPS).sum() + np.log(np.where(add, p_add, 1 - p_add) + _EPS).sum()
         )
