@@ -141,6 +141,9 @@ class DriftConfig(_Section):
     slab_merge_m: float = 0.6  # density bands closer than this (a slab's top and underside) are one slab
     max_slab_tilt_deg: float = 20.0  # a fitted plane steeper than this is not a slab
     min_slab_share: float = 0.2  # a slab plane has at least this share of the largest slab plane's points
+    wall_planes: int = 40  # drift: vertical planes tried per story (RANSAC, one after another)
+    wall_threshold_m: float = 0.01
+    wall_min_points: int = 150
     seed: int = 0
 
 

@@ -63,7 +63,7 @@ def _row(label: str, results: list[CrackResult]) -> tuple[str, float]:
         assert s is not None
         f1s.append(s.f1)
         cells.append(
-            f"{s.precision:.2f} {s.recall:.2f} {s.f1:.2f} {s.length_error_m * 1000:5.0f} {s.width_error_m * 1000:4.0f}"
+            f"{s.precision:.2f} {s.recall:.2f} {s.f1:.2f} {s.length_error_m * 1000:4.0f} {s.width_error_m * 1000:6.0f}"
         )
     le = np.nanmean([r.scores.length_error_m for r in results]) * 1000  # type: ignore[union-attr]
     we = np.nanmean([r.scores.width_error_m for r in results]) * 1000  # type: ignore[union-attr]
@@ -77,7 +77,7 @@ _HEADER: Final = (
     + " | mean F1 len wid\n"
     + " " * 18
     + " | "
-    + " | ".join(["P    R    F1   len mm wid mm"[:24]] * 3)
+    + " | ".join(["P    R    F1  len mm wid"] * 3)
 )
 
 
@@ -191,15 +191,16 @@ def test_unseen_simulated_elements() -> None:
     print("\nUnseen simulated elements (F1, mean of seeds 100-104):")
     for feature in (FeatureSet.SHADE_CRACKEMBED, FeatureSet.SHADE, FeatureSet.CRACKEMBED):
         for kind in ("column", "wall", "slab"):
-            f1, we = [], []
+            f1, we, wi = [], [], []
             for seed in range(100, 105):
                 cloud, mask, _ = cracked_element(kind, seed, 0.004 if kind != "slab" else 0.008)
                 s = find_cracks(cloud, CrackConfig(), mask, features=feature).scores
                 f1.append(s.f1)  # type: ignore[union-attr]
                 we.append(s.width_error_m)  # type: ignore[union-attr]
+                wi.append(s.instance_width_error_m)  # type: ignore[union-attr]
             print(
-                f"  {feature.value:10s} {kind:6s} F1 {np.mean(f1):.3f} (min {np.min(f1):.2f}) "
-                f"width error {np.nanmean(we) * 1000:.1f} mm"
+                f"  {feature.value:16s} {kind:6s} F1 {np.mean(f1):.3f} (min {np.min(f1):.2f}) "
+                f"width error {np.nanmean(we) * 1000:.1f} mm (whole predicted instance: {np.nanmean(wi) * 1000:.1f} mm)"
             )
 
 

@@ -68,6 +68,39 @@ def test_synthetic_stories_drift_and_tilt() -> None:
         assert abs(story.drift_x_mm - dx) <= 5 and abs(story.drift_y_mm - dy) <= 5
 
 
+def _sheared_walls(rng: np.random.Generator, z0: float, z1: float, d0: np.ndarray, d1: np.ndarray) -> np.ndarray:
+    """The walls of one story (outer box and two inner walls), each point moved by the drift blended from
+    d0 at the floor to d1 at the ceiling, as walls shear under inter-story drift."""
+    n = 80000
+    z = rng.uniform(z0, z1, n)
+    t = rng.uniform(-1, 1, n)
+    side = rng.integers(0, 6, n)
+    x = np.select([side == 0, side == 1, side == 4], [-5.0, 5.0, 1.0], t * 5)
+    y = np.select([side == 2, side == 3, side == 5], [-4.0, 4.0, -1.0], t * 4)
+    s = ((z - z0) / (z1 - z0))[:, None]
+    return np.c_[np.c_[x, y] + (1 - s) * d0 + s * d1, z] + rng.normal(0, 0.002, (n, 3))
+
+
+def test_drift_from_sheared_walls_within_2_mm() -> None:
+    """Two stories whose walls lean with the drift of the slabs above them: drift within 2 mm, tilt 0.05°."""
+    rng = np.random.default_rng(4)
+    d1, d2 = np.array([0.018, -0.007]), np.array([0.031, 0.012])
+    pts = np.vstack(
+        [
+            _slab(rng, 0.0, 0.0, 0.0, (0.0, 0.0)),
+            _slab(rng, 3.0, 0.3, -0.2, tuple(d1)),
+            _slab(rng, 6.0, -0.2, 0.4, tuple(d2)),
+            _sheared_walls(rng, 0.0, 3.0, np.zeros(2), d1),
+            _sheared_walls(rng, 3.0, 6.0, d1, d2),
+        ]
+    )
+    result = measure_drift(pts, DriftConfig())
+    assert len(result.stories) == 3 and not result.notes
+    for story, (d, tx, ty) in zip(result.stories, [(np.zeros(2), 0, 0), (d1, 0.3, -0.2), (d2, -0.2, 0.4)], strict=True):
+        assert abs(story.drift_x_mm - d[0] * 1000) <= 2 and abs(story.drift_y_mm - d[1] * 1000) <= 2
+        assert abs(story.tilt_x_deg - tx) <= 0.05 and abs(story.tilt_y_deg - ty) <= 0.05
+
+
 def test_slab_bands_ignore_walls() -> None:
     rng = np.random.default_rng(2)
     z = np.concatenate([rng.uniform(0, 6, 50000), rng.normal(0.0, 0.01, 20000), rng.normal(3.0, 0.01, 20000)])

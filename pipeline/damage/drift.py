@@ -155,6 +155,38 @@ def _surfaces(band: np.ndarray, cfg: DriftConfig, rng: np.random.Generator) -> l
     return sorted(out, key=lambda s: s.height)
 
 
+def story_shear(
+    pts: np.ndarray, floor_z: float, ceiling_z: float, cfg: DriftConfig, rng: np.random.Generator
+) -> np.ndarray | None:
+    """Inter-story drift (x, y) in metres from how the story's walls and columns lean: a vertical face whose
+    top moved by Δ against its bottom over the story height H has a normal with n_z = -(n_xy · Δ) / H.
+    Tall vertical planes (spanning most of the story, so not furniture) are taken one by one by RANSAC and
+    Δ is their least-squares answer, weighted by support. None when fewer than two independent directions."""
+    height = ceiling_z - floor_z
+    if height < 0.5:
+        return None
+    rest = pts[(pts[:, 2] > floor_z + 0.1) & (pts[:, 2] < ceiling_z - 0.1)]
+    rows, rhs, weight = [], [], []
+    for _ in range(cfg.wall_planes):  # one iteration per plane
+        if len(rest) < cfg.wall_min_points:
+            break
+        plane, inliers = ransac_plane(rest, cfg.wall_threshold_m, cfg.ransac_iterations, rng)
+        if inliers.sum() < cfg.wall_min_points:
+            break
+        on, rest = rest[inliers], rest[~inliers]
+        if abs(plane[2]) > 0.1 or np.ptp(on[:, 2]) < 0.6 * (height - 0.2):
+            continue
+        rows.append(-plane[:2] / height)
+        rhs.append(plane[2])
+        weight.append(np.sqrt(len(on)))
+    if len(rows) < 2:
+        return None
+    a = np.asarray(rows) * np.asarray(weight)[:, None]
+    if np.linalg.svd(a, compute_uv=False)[-1] < 0.1 * np.linalg.svd(a, compute_uv=False)[0]:
+        return None  # all planes face one way: the other drift component is not seen
+    return np.linalg.lstsq(a, np.asarray(rhs) * np.asarray(weight), rcond=None)[0]
+
+
 def _bands(pts: np.ndarray, cfg: DriftConfig) -> list[tuple[float, float]]:
     """Slab bands with bins no finer than the point spacing (a voxelised map would alias finer bins), over
     the same height window whatever the bin."""
@@ -199,13 +231,19 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     if not slabs:
         return DriftResult(stories, gravity.value, bands, notes)
     # A story runs from the top surface (floor) of one slab to the underside (ceiling) of the next; its drift
-    # is how far the ceiling's footprint moved against the floor's. Drifts add up from the lowest slab.
+    # is how far its walls and columns lean (`story_shear`), or failing that how far the ceiling's footprint
+    # moved against the floor's. Drifts add up from the lowest slab.
     base = slabs[0][-1]
     to_base = _level(pts, base.plane[:3])  # tilts against the lowest plane
     drift = np.zeros(2)
     for i, surfaces in enumerate(slabs):
         if i > 0:
-            drift = drift + (surfaces[0].centre - slabs[i - 1][-1].centre) * 1000.0
+            below = slabs[i - 1][-1]
+            step = story_shear(pts, below.height, surfaces[0].height, cfg, rng)
+            if step is None:
+                notes.append(f"story {i - 1}: too few tall walls or columns seen; drift from slab footprints")
+                step = surfaces[0].centre - below.centre
+            drift = drift + step * 1000.0
         main = max(surfaces, key=lambda s: s.points)
         tx, ty, total = tilt_angles(to_base @ main.plane[:3])
         normal = rot.T @ main.plane[:3]  # back to the input frame
