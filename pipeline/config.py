@@ -119,7 +119,8 @@ class CrackConfig(_Section):
     fpfh_radius_m: float = 0.02
     smooth_cell_m: float = 0.02  # detector scores averaged over the 3 x 3 x 3 block of these voxels; 0 = off
     smooth_keep_raw: bool = True  # a point's own score also counts (thin cracks survive the smoothing)
-    link_m: float = 0.01  # crack points closer than this (or 2 x the spacing) belong to one crack
+    link_m: float = 0.01  # crack points closer than this (or link_spacings x the spacing) belong to one crack
+    link_spacings: float = 2.0
     max_spacing_m: float = 0.02  # coarser clouds are refused as too sparse to measure cracks
     fit_points: int = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
     weights: str | None = None  # CrackEmbed weights; None = the shipped ones

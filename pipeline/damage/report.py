@@ -159,7 +159,7 @@ def find_cracks(
     mask = detection.mask
     timings["detect"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    link = max(cfg.link_m, 2.0 * spacing)
+    link = max(cfg.link_m, cfg.link_spacings * spacing)
     cracks, ids = measure_cracks(part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing)
     scores = score(part.points, mask, carried, link, cfg.min_crack_points) if carried is not None else None
     timings["measure"] = time.perf_counter() - t0
