@@ -95,7 +95,7 @@ def test_drift_from_sheared_walls_within_2_mm() -> None:
         ]
     )
     result = measure_drift(pts, DriftConfig())
-    assert len(result.stories) == 3 and not result.notes
+    assert len(result.stories) == 3 and not any("too few" in note for note in result.notes)
     for story, (d, tx, ty) in zip(result.stories, [(np.zeros(2), 0, 0), (d1, 0.3, -0.2), (d2, -0.2, 0.4)], strict=True):
         assert abs(story.drift_x_mm - d[0] * 1000) <= 2 and abs(story.drift_y_mm - d[1] * 1000) <= 2
         assert abs(story.tilt_x_deg - tx) <= 0.05 and abs(story.tilt_y_deg - ty) <= 0.05

@@ -155,36 +155,99 @@ def _surfaces(band: np.ndarray, cfg: DriftConfig, rng: np.random.Generator) -> l
     return sorted(out, key=lambda s: s.height)
 
 
-def story_shear(
-    pts: np.ndarray, floor_z: float, ceiling_z: float, cfg: DriftConfig, rng: np.random.Generator
-) -> np.ndarray | None:
-    """Inter-story drift (x, y) in metres from how the story's walls and columns lean: a vertical face whose
-    top moved by Δ against its bottom over the story height H has a normal with n_z = -(n_xy · Δ) / H.
-    Tall vertical planes (spanning most of the story, so not furniture) are taken one by one by RANSAC and
-    Δ is their least-squares answer, weighted by support. None when fewer than two independent directions."""
-    height = ceiling_z - floor_z
-    if height < 0.5:
-        return None
-    rest = pts[(pts[:, 2] > floor_z + 0.1) & (pts[:, 2] < ceiling_z - 0.1)]
-    rows, rhs, weight = [], [], []
+@dataclass(slots=True)
+class _Wall:
+    """One tall vertical face of a story: horizontal unit normal, centroid (x, y), how far its top moved
+    against its bottom along the normal (m), and its support."""
+
+    normal: np.ndarray
+    centroid: np.ndarray
+    lean: float
+    points: int
+
+
+def story_fraction(pts: np.ndarray, floor: np.ndarray, ceiling: np.ndarray) -> np.ndarray:
+    """Each point's height as a fraction of the local story height: 0 on the floor plane, 1 on the ceiling
+    plane, measured straight up at the point (tilted slabs make the story taller on one side)."""
+    zf = -(pts[:, :2] @ floor[:2] + floor[3]) / floor[2]
+    zc = -(pts[:, :2] @ ceiling[:2] + ceiling[3]) / ceiling[2]
+    return (pts[:, 2] - zf) / np.maximum(zc - zf, 1e-6)
+
+
+def story_walls(
+    pts: np.ndarray, floor: np.ndarray, ceiling: np.ndarray, cfg: DriftConfig, rng: np.random.Generator
+) -> list[_Wall]:
+    """Tall vertical faces (walls, columns) of the story between two slab planes, each with how far it leans.
+
+    Points are placed by their story fraction s (`story_fraction`), which follows the floor and ceiling
+    planes wherever they are tilted; beams under the ceiling (s above `wall_s_max`) are left out. A face
+    is taken when it covers the story from near the floor to near the beams (furniture, doors and windows
+    do not, and they do not lean with the story); its lean is the slope of the offset along its normal
+    against s (least squares), i.e. the offset of its top (s = 1) against its bottom (s = 0)."""
+    s = story_fraction(pts, floor, ceiling)
+    keep = (s > cfg.wall_s_min) & (s < cfg.wall_s_max)
+    rest, rest_s = pts[keep], s[keep]
+    walls: list[_Wall] = []
     for _ in range(cfg.wall_planes):  # one iteration per plane
         if len(rest) < cfg.wall_min_points:
             break
         plane, inliers = ransac_plane(rest, cfg.wall_threshold_m, cfg.ransac_iterations, rng)
         if inliers.sum() < cfg.wall_min_points:
             break
-        on, rest = rest[inliers], rest[~inliers]
-        if abs(plane[2]) > 0.1 or np.ptp(on[:, 2]) < 0.6 * (height - 0.2):
+        on, on_s = rest[inliers], rest_s[inliers]
+        rest, rest_s = rest[~inliers], rest_s[~inliers]
+        lo, hi = np.percentile(on_s, [2, 98])
+        if abs(plane[2]) > 0.1 or lo > cfg.wall_s_min + 0.15 or hi < cfg.wall_s_max - 0.15:
             continue
-        rows.append(-plane[:2] / height)
-        rhs.append(plane[2])
-        weight.append(np.sqrt(len(on)))
-    if len(rows) < 2:
+        normal = plane[:2] / np.linalg.norm(plane[:2])
+        offset = on[:, :2] @ normal
+        a = np.c_[np.ones(len(on)), on_s]
+        lean = float(np.linalg.lstsq(a, offset, rcond=None)[0][1])
+        walls.append(_Wall(normal, on[:, :2].mean(axis=0), lean, len(on)))
+    return walls
+
+
+def _rotation(normal: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) taking +z to `normal` by the shortest turn (how a level with that normal turned)."""
+    return _level(np.zeros((0, 3)), normal).T
+
+
+def story_step(
+    walls: list[_Wall],
+    centre: np.ndarray,
+    floor_normal: np.ndarray,
+    ceiling_normal: np.ndarray,
+    thickness: float,
+    cfg: DriftConfig,
+) -> np.ndarray | None:
+    """Drift (x, y) in metres of the upper level against the lower one, at the building centre and at the
+    top of the upper slab, from the leans of the story's walls.
+
+    A wall at r (from the centre) has its foot on the lower level and its head under the upper slab, a slab
+    thickness below where the upper level's drift is taken; both levels turned (their slab normals). So its
+    lean along its normal n is n · (D + (R_up - I)(r, -t) - (R_low - I)(r, 0) + ω × r): D is the drift
+    step, ω a small turn about z that tilts do not show. D and ω by least squares, walls that disagree
+    (Huber) weighed down. None when fewer than `wall_min_count` walls or they face fewer than two ways."""
+    if len(walls) < cfg.wall_min_count:
         return None
-    a = np.asarray(rows) * np.asarray(weight)[:, None]
-    if np.linalg.svd(a, compute_uv=False)[-1] < 0.1 * np.linalg.svd(a, compute_uv=False)[0]:
-        return None  # all planes face one way: the other drift component is not seen
-    return np.linalg.lstsq(a, np.asarray(rhs) * np.asarray(weight), rcond=None)[0]
+    n = np.array([w.normal for w in walls])
+    r = np.array([w.centroid for w in walls]) - centre
+    r_up, r_low = _rotation(ceiling_normal) - np.eye(3), _rotation(floor_normal) - np.eye(3)
+    head = np.c_[r, np.full(len(r), -thickness)] @ r_up.T
+    foot = np.c_[r, np.zeros(len(r))] @ r_low.T
+    rhs = np.array([w.lean for w in walls]) - np.einsum("ij,ij->i", n, head[:, :2] - foot[:, :2])
+    a = np.c_[n, n[:, 0] * -r[:, 1] + n[:, 1] * r[:, 0]]
+    sv = np.linalg.svd(n, compute_uv=False)
+    if sv[-1] < 0.2 * sv[0]:
+        return None  # all walls face one way: the other drift component is not seen
+    base = np.sqrt(np.array([w.points for w in walls], np.float64))
+    weight = base.copy()
+    x = np.zeros(3)
+    for _ in range(10):  # iteratively reweighted least squares (Huber)
+        x = np.linalg.lstsq(a * weight[:, None], rhs * weight, rcond=None)[0]
+        res = np.abs(a @ x - rhs)
+        weight = base * np.minimum(1.0, cfg.wall_huber_m / np.maximum(res, 1e-9))
+    return x[:2]
 
 
 def _bands(pts: np.ndarray, cfg: DriftConfig) -> list[tuple[float, float]]:
@@ -195,6 +258,29 @@ def _bands(pts: np.ndarray, cfg: DriftConfig) -> list[tuple[float, float]]:
     bin_m = max(cfg.bin_m, point_spacing(pts, sample=5000, seed=cfg.seed))
     window = max(3, round(cfg.neighbourhood_bins * cfg.bin_m / bin_m))
     return slab_bands(pts[:, 2], bin_m, cfg.density_ratio, window, cfg.slab_merge_m)
+
+
+def _height_at(plane: np.ndarray, xy: np.ndarray) -> float:
+    return float(-(plane[:2] @ xy + plane[3]) / plane[2])
+
+
+def _distinct(slabs: list[list[_Surface]], centre: np.ndarray, merge_m: float) -> list[list[_Surface]]:
+    """Slabs lowest first, one per level: a slab whose plane (at the centre) lies within `merge_m` of a
+    bigger one's is the same slab found from two density bands."""
+    order = sorted(slabs, key=lambda x: -max(y.points for y in x))
+    kept: list[list[_Surface]] = []
+    for x in order:
+        z = _height_at(x[-1].plane, centre)
+        if all(abs(z - _height_at(k[-1].plane, centre)) >= merge_m for k in kept):
+            kept.append(x)
+    return sorted(kept, key=lambda x: _height_at(x[-1].plane, centre))
+
+
+def _thicknesses(slabs: list[list[_Surface]], centre: np.ndarray) -> np.ndarray:
+    """Each slab's thickness at the centre (top minus underside), NaN when only one side was seen."""
+    return np.array(
+        [_height_at(x[-1].plane, centre) - _height_at(x[0].plane, centre) if len(x) > 1 else np.nan for x in slabs]
+    )
 
 
 def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
@@ -218,7 +304,8 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     bands = _bands(pts, cfg)
     slabs: list[list[_Surface]] = []
     for lo, hi in bands:  # one iteration per slab
-        band = pts[(pts[:, 2] >= lo - cfg.bin_m) & (pts[:, 2] < hi + cfg.bin_m)]
+        # A tilted slab spreads over more height than its densest bins: look for its plane around the band.
+        band = pts[(pts[:, 2] >= lo - cfg.slab_pad_m) & (pts[:, 2] < hi + cfg.slab_pad_m)]
         surfaces = _surfaces(band, cfg, rng) if len(band) >= _MIN_SLAB_POINTS else []
         if surfaces:
             slabs.append(surfaces)
@@ -230,16 +317,30 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     stories: list[Story] = []
     if not slabs:
         return DriftResult(stories, gravity.value, bands, notes)
+    centre = slabs[0][-1].centre
+    slabs = _distinct(slabs, centre, cfg.slab_merge_m)
+    thickness = _thicknesses(slabs, centre)
+    seen = thickness[np.isfinite(thickness)]
+    fill = float(np.median(seen)) if len(seen) else 0.0
+    if any(len(x) < 2 for x in slabs[1:]):
+        notes.append(
+            f"a slab seen from one side only: its thickness is taken as {fill:.3f} m "
+            + ("(the median of the slabs seen from both sides)" if len(seen) else "(no slab seen from both sides)")
+        )
+    thickness = np.where(np.isfinite(thickness), thickness, fill)
     # A story runs from the top surface (floor) of one slab to the underside (ceiling) of the next; its drift
-    # is how far its walls and columns lean (`story_shear`), or failing that how far the ceiling's footprint
-    # moved against the floor's. Drifts add up from the lowest slab.
+    # step comes from how far its walls and columns lean (`story_walls`, `story_step`), or failing that how
+    # far the ceiling's footprint moved against the floor's. Drifts add up from the lowest slab and are those
+    # of each slab's top surface at the building centre.
     base = slabs[0][-1]
     to_base = _level(pts, base.plane[:3])  # tilts against the lowest plane
     drift = np.zeros(2)
     for i, surfaces in enumerate(slabs):
         if i > 0:
             below = slabs[i - 1][-1]
-            step = story_shear(pts, below.height, surfaces[0].height, cfg, rng)
+            story_pts = pts[(pts[:, 2] > below.height - 1.0) & (pts[:, 2] < surfaces[0].height + 1.0)]
+            walls = story_walls(story_pts, below.plane, surfaces[0].plane, cfg, rng)
+            step = story_step(walls, centre, below.plane[:3], surfaces[0].plane[:3], float(thickness[i]), cfg)
             if step is None:
                 notes.append(f"story {i - 1}: too few tall walls or columns seen; drift from slab footprints")
                 step = surfaces[0].centre - below.centre
