@@ -5,8 +5,8 @@
 Prints one table like the study's (overall/mean accuracy, mean/overall IoU, NMI, AMI, ARI, ms per scan of
 the labelling stage, network size, peak memory), the targets met or not, the whole stream's speed with a
 Rerun recording, and writes the accuracy/speed sweep over the number of context points to
-docs/mcpnet_context_points.png. Each method runs in its own process (a fair peak memory) on the same
-scans, simulated once and handed over as a pickle.
+docs/mcpnet_context_points.png. Each method runs in its own process on the same scans, simulated once and
+streamed from a pickle one scan at a time (so the peak memory is that of the whole stream).
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from models.mcpnet import (
     save_weights,
 )
 from models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
-from pipeline.classes import UNLABELLED
+from pipeline.classes import NUM_CLASSES, UNLABELLED
 from pipeline.config import Config
 from pipeline.errors import InputError
 from pipeline.labellers.mcpnet import MCPNetLabeller
@@ -187,7 +187,10 @@ def test_a_short_simulated_run_labels_points(sim_scans: list, color: bool) -> No
     assert (vmap.class_ids != UNLABELLED).all()
     np.testing.assert_allclose(np.linalg.norm(vmap.embeddings, axis=1), 1.0, atol=1e-4)
     assert (vmap.instance_ids > 0).all()
-    assert _accuracy(vmap) > 0.6  # the classes are far from chance (1/14) on a building never trained on
+    truth = vmap.true_class_ids[vmap.true_class_ids != UNLABELLED]
+    majority = np.bincount(truth).max() / len(truth)  # what calling everything a wall would score
+    # A building never trained on: with colour better than the majority class, without it far above chance.
+    assert _accuracy(vmap) > (majority + 0.05 if color else 3 / NUM_CLASSES)
 
 
 def test_embed_cloud_gives_unit_embeddings_per_point() -> None:
