@@ -121,6 +121,9 @@ class CrackConfig(_Section):
     smooth_keep_raw: bool = True  # a point's own score also counts (thin cracks survive the smoothing)
     link_m: float = 0.01  # crack points closer than this (or link_spacings x the spacing) belong to one crack
     link_spacings: float = 2.0
+    support_spacings: float = 3.0  # a crack point needs min_support of the points within this many spacings ...
+    min_support: float = 0.5  # ... to be crack points too (0 = no clean-up before linking)
+    min_elongation: float = 3.0  # a reported crack is at least this many times longer than its opening is wide
     max_spacing_m: float = 0.02  # coarser clouds are refused as too sparse to measure cracks
     fit_points: int = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
     weights: str | None = None  # CrackEmbed weights; None = the shipped ones

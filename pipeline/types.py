@@ -176,6 +176,8 @@ class Crack:
     normal: np.ndarray  # (3,) unit normal of the surface plane
     severe: bool
     width_resolved: bool = True  # False: narrower than the point spacing; width_m is then the spacing
+    max_width_m: float = float("nan")  # widest part of the opening (90th percentile over the crack's slices)
+    rect_width_m: float = float("nan")  # short side of the minimum-area rectangle (the whole group's extent)
 
 
 @dataclass(slots=True)

@@ -15,7 +15,7 @@ from pipeline.cloud_io import read_cloud, write_cloud
 from pipeline.config import CrackConfig
 from pipeline.damage.detectors import Detector, detect
 from pipeline.damage.features import FeatureSet, compute_features
-from pipeline.damage.measure import measure_cracks, min_area_rectangle
+from pipeline.damage.measure import crack_shape, measure_cracks, min_area_rectangle, supported
 from pipeline.damage.report import find_cracks
 from pipeline.types import LabelledCloud
 
@@ -67,6 +67,56 @@ def test_width_below_spacing_is_clamped_and_flagged() -> None:
     pts = np.c_[np.linspace(0, 0.5, 200), np.zeros(200), np.zeros(200)]  # a one-point-wide crack
     cracks, _ = measure_cracks(pts, np.ones(200, bool), 0.01, 20, 0.0032, spacing_m=0.005)
     assert cracks[0].width_m == pytest.approx(0.005) and not cracks[0].width_resolved
+    assert not cracks[0].severe  # only a bound: not flagged severe
+
+
+def _wavy_crack(width: float, wander: float, spacing: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+    """A 1 m crack of constant opening `width` whose centre line wanders by ±`wander` across a wall; its
+    points drop 5 mm into the wall (a groove) and the wall around it is returned too."""
+    rng = np.random.default_rng(3)
+    u, v = np.meshgrid(np.arange(0, 1, spacing), np.arange(-0.15, 0.15, spacing), indexing="ij")
+    uv = np.c_[u.ravel(), v.ravel()] + rng.uniform(-0.3, 0.3, (u.size, 2)) * spacing
+    phase = uv[:, 0] * 2 * np.pi * 1.5
+    slope = np.arctan(wander * 2 * np.pi * 1.5 * np.cos(phase))
+    inside = np.abs(uv[:, 1] - wander * np.sin(phase)) * np.cos(slope) <= width / 2
+    pts = np.c_[uv, np.where(inside, -0.005, 0.0)]
+    return pts, inside
+
+
+@pytest.mark.parametrize("width", [0.004, 0.01, 0.02])
+def test_opening_width_of_a_wandering_crack(width: float) -> None:
+    """The rectangle spans the whole wander (≈ 0.1 m); the opening is the crack's width. Measured on the
+    wall's plane: the crack's own points are nearly a line, and their plane tilts into the groove."""
+    pts, inside = _wavy_crack(width, wander=0.05)
+    shape = crack_shape(pts[inside], 0.002, surface=pts)
+    assert shape.length == pytest.approx(1.0, abs=0.01)
+    assert shape.rect_width > 0.1
+    assert shape.width == pytest.approx(width, abs=0.002)
+    assert abs(shape.normal[2]) > 0.999
+
+
+def test_support_removes_isolated_points_and_the_rim() -> None:
+    pts, inside = _wavy_crack(0.01, wander=0.0)
+    rng = np.random.default_rng(0)
+    noise = rng.random(len(pts)) < 0.01  # scattered false positives on sound concrete
+    rim = np.abs(pts[:, 1]) <= 0.009  # a 4 mm rim of sound concrete either side (what smoothing adds)
+    kept = supported(pts, inside | noise | rim, 0.006, 0.5)
+    assert kept[inside].all()
+    assert not kept[noise & ~rim & ~inside].any()
+    assert kept[rim & ~inside].mean() < 0.95  # only the rim's outer edge: the rest is rim all around
+    core = supported(pts, kept, 0.006, 0.5, by=inside)  # support by the points detected before smoothing
+    assert core[inside].all() and not core[rim & ~inside].any()
+
+
+def test_blobs_are_not_cracks() -> None:
+    """A round patch (a spall, or a cluster of false positives) is not reported as a crack; a thin one is."""
+    u, v = np.meshgrid(np.arange(0, 1, 0.002), np.arange(0, 1, 0.002), indexing="ij")
+    pts = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    blob = np.hypot(pts[:, 0] - 0.3, pts[:, 1] - 0.3) < 0.05
+    thin = (np.abs(pts[:, 1] - 0.7) <= 0.003) & (pts[:, 0] > 0.2) & (pts[:, 0] < 0.8)
+    cracks, ids = measure_cracks(pts, blob | thin, 0.005, 20, 0.0032, 0.002, min_elongation=3.0)
+    assert len(cracks) == 1 and cracks[0].length_m == pytest.approx(0.6, abs=0.01)
+    assert not ids[blob].any() and ids[thin].all()
 
 
 def _patch(n: int = 4000, seed: int = 0) -> LabelledCloud:
@@ -123,9 +173,9 @@ def test_every_detector_flags_planted_outliers(detector: Detector) -> None:
 
 
 def test_find_cracks_on_a_synthetic_wall() -> None:
-    """A 0.3 m wall patch, tilted in space, with two dark recessed cracks covering ~10 % of it (as the field
-    data's 5-15 %). Measured: F1 0.73 (recall 1.0, precision 0.58: the unsupervised threshold and the 2 cm
-    smoothing also take in some sound concrete around the cracks)."""
+    """A 0.3 m wall patch, tilted in space, with two dark recessed cracks (25 and 12 mm wide) covering ~10 %
+    of it (as the field data's 5-15 %). Measured: F1 0.86 (recall 1.0, precision 0.75: the 2 cm smoothing
+    still rims the cracks with some sound concrete); reported widths 29 and 17 mm."""
     rng = np.random.default_rng(2)
     u, v = np.meshgrid(np.arange(0, 0.3, 0.002), np.arange(0, 0.3, 0.002), indexing="ij")
     uv = np.c_[u.ravel(), v.ravel()] + rng.uniform(-0.0004, 0.0004, (u.size, 2))
@@ -137,11 +187,16 @@ def test_find_cracks_on_a_synthetic_wall() -> None:
     pts = np.c_[uv, depth] @ q.T + [1.0, 2.0, 1.5]
     colors = np.clip(np.where(mask, 120.0, 200.0)[:, None] + rng.normal(0, 10, (len(pts), 3)), 0, 255).astype(np.uint8)
     result = find_cracks(LabelledCloud(pts, colors), CrackConfig(), mask, resolution_m=0.001)
-    assert result.scores is not None and result.scores.f1 > 0.7, result.scores
-    assert result.scores.recall > 0.95
-    # The main true crack is measured exactly from its detected part (the study's protocol).
-    assert result.scores.length_error_m < 0.005 and result.scores.width_error_m < 0.003
-    assert len(result.cracks) >= 2 and all(c.length_m > c.width_m > 0 for c in result.cracks)
+    s = result.scores
+    assert s is not None and s.f1 > 0.8, s
+    assert s.recall > 0.95
+    # The study's protocol (the detected part of the main true crack) flatters: near exact.
+    assert s.study_length_error_m < 0.005 and s.study_width_error_m < 0.003
+    # What a field team reads: the whole reported crack, false positives linked onto it included.
+    assert s.true_cracks == s.found_cracks == 2
+    assert s.length_error_m < 0.01 and s.width_error_m < 0.006
+    assert all(abs(m.width_m - m.true_width_m) < 0.006 for m in s.matches)
+    assert len(result.cracks) == 2 and all(c.length_m > c.rect_width_m >= c.width_m > 0 for c in result.cracks)
 
 
 @pytest.fixture(scope="module")
@@ -150,8 +205,8 @@ def crack_files(crack_dir: Path) -> dict[str, tuple[Path, Path]]:
 
 
 # Measured with the shipped settings (shade+crackembed, isolation forest, 2 cm smoothing keeping each point's own
-# score): 0.63 / 0.67 / 0.77; the original method published 0.55 / 0.67 / about 0.75. Small margin for drift.
-F1_AT_LEAST = {"column1": 0.60, "column2": 0.64, "slab2": 0.74}
+# score, support clean-up): 0.650 / 0.686 / 0.794; the original method published 0.55 / 0.67 / about 0.75.
+F1_AT_LEAST = {"column1": 0.63, "column2": 0.665, "slab2": 0.77}
 
 
 @pytest.mark.parametrize("name", ["column1", "column2", "slab2"])
@@ -165,6 +220,9 @@ def test_cracks_command_on_real_elements(
     assert out["f1"] >= F1_AT_LEAST[name]
     assert out["resolution_m"] == (0.01 if name == "slab2" else 0.001)
     assert out["cracks"] and all({"length_m", "width_m", "position"} <= set(c) for c in out["cracks"])
+    assert all(c["width_m"] <= max(c["rectangle_width_m"], out["spacing_m"]) + 1e-4 for c in out["cracks"])
+    assert {"study_width_error_m", "median_width_error_m", "error_definition", "true_crack_matches"} <= set(out)
+    assert out["found_true_cracks"] >= 1
     assert out["timings_s"]["features"] + out["timings_s"]["detect"] < 10
 
 

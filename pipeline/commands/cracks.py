@@ -1,5 +1,6 @@
 """`aftershock cracks INPUT`: find the cracks of an element (PLY/PCD, or an exported map with --box), measure
-each one's length and width, and score against a truth mask when one is given."""
+each one's length (its minimum-area rectangle) and width (its opening: median extent across the crack over
+slices along it), and score against a truth mask when one is given."""
 
 from __future__ import annotations
 
@@ -96,6 +97,7 @@ def register(app: typer.Typer) -> None:
             x, y, z = c.center
             flag = " SEVERE" if c.severe else ""
             width = f"{c.width_m * 1000:.1f} mm" + ("" if c.width_resolved else " (≤ spacing)")
+            width += f" (widest {c.max_width_m * 1000:.1f} mm)"
             print(
                 f"  crack {c.instance_id:3d} at ({x:.3f}, {y:.3f}, {z:.3f}) length {c.length_m:.3f} m "
                 f"width {width} points {c.num_points}{flag}"
@@ -104,7 +106,11 @@ def register(app: typer.Typer) -> None:
             s = result.scores
             print(f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f}")
             print(
-                f"main crack: length {s.found_length_m:.3f} / {s.true_length_m:.3f} m "
-                f"(error {s.length_error_m:.3f}), width {s.found_width_m:.3f} / {s.true_width_m:.3f} m "
-                f"(error {s.width_error_m:.3f})"
+                f"main true crack against its reported crack: length {s.found_length_m:.3f} / "
+                f"{s.true_length_m:.3f} m (error {s.length_error_m:.3f}), width {s.found_width_m * 1000:.1f} / "
+                f"{s.true_width_m * 1000:.1f} mm (error {s.width_error_m * 1000:.1f})"
+            )
+            print(
+                f"{s.found_cracks} of {s.true_cracks} true cracks found; median error length "
+                f"{s.median_length_error_m:.3f} m, width {s.median_width_error_m * 1000:.1f} mm"
             )

@@ -4,7 +4,7 @@ and the point-wise / per-crack scores against a truth mask."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Final
 
 import numpy as np
@@ -89,14 +89,119 @@ def min_area_rectangle(xy: np.ndarray) -> Rectangle:
 
 
 def crack_size(points: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
-    """Length, width, centre (3,), length axis (3,) and plane normal (3,) of one crack's points, measured on
-    the crack's own best-fit plane."""
+    """Length, width, centre (3,), length axis (3,) and plane normal (3,) of the minimum-area rectangle of
+    one crack's points, measured on the crack's own best-fit plane (the rectangle's width is the extent of
+    the whole group across its long side, not the crack's opening: see `crack_shape`)."""
     centroid, basis = fit_plane(points)
     xy = (np.asarray(points, np.float64) - centroid) @ basis[:2].T
     rect = min_area_rectangle(xy)
     centre = centroid + rect.center @ basis[:2]
     axis = rect.axis @ basis[:2]
     return rect.length, rect.width, centre, axis / max(np.linalg.norm(axis), _EPS), basis[2]
+
+
+@dataclass(frozen=True, slots=True)
+class CrackShape:
+    """One crack measured on its best-fit plane.
+
+    `length`, `rect_width`, `centre` and `axis` are those of the exact minimum-area rectangle; `width` is the
+    crack's opening: the median, over slices across the rectangle's long axis, of the extent of each strand
+    of points across its own local direction (the strand's principal axis); `max_width` the 90th percentile
+    of the same (both at most `rect_width`). A strand several point rows long spans nearly the whole
+    opening, so the extent is not corrected for the spacing; an opening narrower than the spacing measures
+    (near) zero."""
+
+    length: float
+    rect_width: float
+    width: float
+    max_width: float
+    centre: np.ndarray
+    axis: np.ndarray
+    normal: np.ndarray
+    strands: int  # slices-strands the width was measured on (0 = too few points: width = rectangle width)
+
+
+def _strand_widths(xy: np.ndarray, rect: Rectangle, spacing_m: float, gap_m: float) -> np.ndarray:
+    """Width across each strand: the rectangle's long axis is cut into slices a few crack widths long; the
+    points of a slice split into strands where they are more than `gap_m` apart across it; each strand's
+    extent is measured across its own principal direction (a straight strip cut obliquely still measures
+    its true width). Strands of fewer than three points are left out."""
+    h = max(spacing_m, _EPS)
+    u = rect.axis
+    v = np.array([-u[1], u[0]])
+    t = (xy - rect.center) @ u
+    s = (xy - rect.center) @ v
+    rough = max(len(xy) * h * h / max(rect.length, h), h)  # area / length: the mean opening, roughly
+    slice_m = 3.0 * max(rough, 2 * h)
+    cut = np.floor((t - t.min()) / slice_m).astype(np.int64)
+    order = np.lexsort((s, cut))
+    cut, s_o, xy_o = cut[order], s[order], xy[order]
+    new = np.r_[True, (np.diff(cut) != 0) | (np.diff(s_o) > gap_m)]
+    strand = np.cumsum(new) - 1
+    count = np.bincount(strand)
+    mean = np.stack([np.bincount(strand, xy_o[:, i]) for i in range(2)], axis=1) / count[:, None]
+    d = xy_o - mean[strand]
+    cxx = np.bincount(strand, d[:, 0] * d[:, 0])
+    cyy = np.bincount(strand, d[:, 1] * d[:, 1])
+    cxy = np.bincount(strand, d[:, 0] * d[:, 1])
+    angle = 0.5 * np.arctan2(2 * cxy, cxx - cyy)  # principal direction of each strand
+    across = d[:, 0] * -np.sin(angle[strand]) + d[:, 1] * np.cos(angle[strand])
+    starts = np.flatnonzero(new)
+    extent = np.maximum.reduceat(across, starts) - np.minimum.reduceat(across, starts)
+    return extent[count >= 3]
+
+
+def crack_shape(
+    points: np.ndarray, spacing_m: float, gap_m: float | None = None, surface: np.ndarray | None = None
+) -> CrackShape:
+    """Length and orientation (minimum-area rectangle) and opening width (see `CrackShape`) of one crack's
+    points on the best-fit plane of `surface` (the element's points around the crack; default the crack's own
+    points, which for a thin crack are nearly a line: the plane through them then tilts into the crack's
+    depth and widens it). Strands of a slice are split at gaps over `gap_m` (default 2 spacings)."""
+    pts = np.asarray(points, np.float64)
+    centroid, basis = fit_plane(pts if surface is None or len(surface) < 3 else surface)
+    centroid = pts.mean(axis=0)
+    xy = (pts - centroid) @ basis[:2].T
+    rect = min_area_rectangle(xy)
+    centre = centroid + rect.center @ basis[:2]
+    axis = rect.axis @ basis[:2]
+    axis = axis / max(np.linalg.norm(axis), _EPS)
+    widths = _strand_widths(xy, rect, spacing_m, gap_m or 2 * spacing_m) if len(xy) >= 3 else np.zeros(0)
+    if len(widths) == 0:
+        width = max_width = max(rect.width, spacing_m)
+    else:
+        # a strand measured across a poorly defined direction can come out wider than the whole group
+        width, max_width = (min(float(np.percentile(widths, q)), rect.width) for q in (50, 90))
+    return CrackShape(rect.length, rect.width, width, max_width, centre, axis, basis[2], len(widths))
+
+
+def surface_around(tree: cKDTree, points: np.ndarray, members: np.ndarray, reach_m: float) -> np.ndarray:
+    """The element's points (crack or not) within `reach_m` of a crack's points: the surface the crack is
+    measured on. Queried from at most 500 of the crack's points, spread along it."""
+    step = max(1, len(members) // 500)
+    near = tree.query_ball_point(points[members[::step]], reach_m, workers=-1)
+    return points[np.unique(np.concatenate([np.asarray(n, np.int64) for n in near]))]
+
+
+def supported(
+    points: np.ndarray, mask: np.ndarray, radius_m: float, min_share: float, by: np.ndarray | None = None
+) -> np.ndarray:
+    """Points of `mask` of which at least `min_share` of the points within `radius_m` (crack or not) are in
+    `by` (default `mask` itself). An open crack is a groove: its points have crack points all around them; a
+    false positive at the edge of a smoothed halo or alone on sound concrete has mostly sound neighbours, and
+    removed before linking it can neither widen a crack nor bridge two. (A flat, unrecessed crack one point
+    wide would not pass either: the rule suits cracks wider than about a third of `radius_m`.)"""
+    mask = np.asarray(mask, bool).copy()
+    idx = np.flatnonzero(mask)
+    if min_share <= 0 or radius_m <= 0 or len(idx) == 0:
+        return mask
+    src = idx if by is None else np.flatnonzero(by)
+    if len(src) == 0:
+        return np.zeros_like(mask)
+    crack = cKDTree(points[src]).query_ball_point(points[idx], radius_m, return_length=True, workers=-1)
+    every = cKDTree(points).query_ball_point(points[idx], radius_m, return_length=True, workers=-1)
+    mask[idx[crack < min_share * every]] = False
+    return mask
 
 
 def components(points: np.ndarray, link_m: float, min_points: int) -> np.ndarray:
@@ -122,42 +227,78 @@ def measure_cracks(
     min_points: int,
     severe_width_m: float,
     spacing_m: float = 0.0,
+    min_elongation: float = 0.0,
+    surface_m: float = 0.02,
+    core: np.ndarray | None = None,
 ) -> tuple[list[Crack], np.ndarray]:
     """Each connected group of crack points (`mask`) as a `Crack`, largest first, and the per-point crack id
-    (0 = not crack or a group under `min_points`). A width is never reported below the point spacing:
-    nothing narrower can be seen, so such widths are clamped to the spacing and marked unresolved."""
+    (0 = not crack, a group under `min_points`, or a blob: length under `min_elongation` times its opening
+    width). Groups are linked, and length and orientation measured, on all of `mask`; the opening width only
+    on the group's `core` points when given (e.g. those whose neighbours were detected before smoothing:
+    smoothing joins a crack's speckled detections but also rims it with sound concrete). A width is never
+    reported below the point spacing: nothing narrower can be seen, so such widths are clamped to the
+    spacing and marked unresolved."""
     mask = np.asarray(mask, bool)
     ids = np.zeros(len(points), np.int64)
     idx = np.flatnonzero(mask)
-    ids[idx] = components(points[idx], link_m, min_points)
+    groups = components(points[idx], link_m, min_points)
+    tree = cKDTree(points) if len(idx) else None
+    reach = max(surface_m, 2 * link_m)
     cracks: list[Crack] = []
-    for k in range(1, int(ids.max(initial=0)) + 1):  # one iteration per crack, not per point
-        pts = points[ids == k]
-        length, width, centre, axis, normal = crack_size(pts)
-        resolved = width >= spacing_m
-        width = max(width, spacing_m)
+    for k in range(1, int(groups.max(initial=0)) + 1):  # one iteration per crack, not per point
+        members = idx[groups == k]
+        surface = surface_around(tree, points, members, reach)
+        shape = crack_shape(points[members], spacing_m, link_m, surface)
+        inner = members[core[members]] if core is not None else members
+        if len(inner) >= 3 and len(inner) < len(members):
+            opening = crack_shape(points[inner], spacing_m, link_m, surface)
+            shape = replace(shape, width=opening.width, max_width=opening.max_width, strands=opening.strands)
+        if shape.length < min_elongation * shape.width:
+            continue
+        ids[members] = len(cracks) + 1
+        resolved = shape.width >= spacing_m
+        width = max(shape.width, spacing_m)
         cracks.append(
             Crack(
-                instance_id=k,
-                center=centre,
-                length_m=float(length),
+                instance_id=len(cracks) + 1,
+                center=shape.centre,
+                length_m=float(shape.length),
                 width_m=float(width),
-                num_points=len(pts),
-                axis=axis,
-                normal=normal,
-                severe=bool(width >= severe_width_m),
+                num_points=len(members),
+                axis=shape.axis,
+                normal=shape.normal,
+                severe=bool(resolved and width >= severe_width_m),  # an unresolved width is only a bound
                 width_resolved=bool(resolved),
+                max_width_m=float(max(shape.max_width, spacing_m)),
+                rect_width_m=float(shape.rect_width),
             )
         )
     return cracks, ids
 
 
 @dataclass(frozen=True, slots=True)
+class CrackMatch:
+    """One true crack (a connected component of the truth mask, linked and measured exactly as the reported
+    cracks are) and the reported crack holding most of its points (`crack_id` 0: none holds a third)."""
+
+    true_length_m: float
+    true_width_m: float
+    true_points: int
+    crack_id: int
+    length_m: float
+    width_m: float
+
+
+@dataclass(frozen=True, slots=True)
 class Scores:
-    """Point-wise precision/recall/F1 and size errors of the main (largest) true crack, two ways:
-    `length_error_m`/`width_error_m` as the study measured them (the detected part of the main true crack,
-    i.e. main truth ∩ prediction, against the whole main true crack), and `instance_*` (stricter: the
-    whole predicted crack instance that overlaps the main true crack most, false positives included)."""
+    """Point-wise precision/recall/F1, and the size errors of what a field team reads: the main (largest)
+    true crack against the whole reported crack that holds most of its points (`length_error_m`,
+    `width_error_m`; false positives linked onto it included; true groups that are blobs, not cracks, are
+    left out as the reported cracks leave them out), the median of the same over every true crack
+    that was found (`median_*`), and every match. Widths are openings (`CrackShape.width`) clamped to the
+    point spacing on both sides. `study_*` are the study's errors: the detected part of the main true crack
+    (truth ∩ prediction) against the whole main true crack, both by the minimum-area rectangle — they never
+    see a false positive, so they flatter."""
 
     precision: float
     recall: float
@@ -168,45 +309,95 @@ class Scores:
     true_width_m: float
     found_length_m: float
     found_width_m: float
-    instance_length_error_m: float
-    instance_width_error_m: float
+    median_length_error_m: float
+    median_width_error_m: float
+    true_cracks: int
+    found_cracks: int
+    study_length_error_m: float
+    study_width_error_m: float
+    matches: tuple[CrackMatch, ...] = field(default=())
+    true_blobs: int = 0
 
 
-def score(points: np.ndarray, predicted: np.ndarray, truth: np.ndarray, link_m: float, min_points: int) -> Scores:
-    """Precision, recall and F1 over the points of the evaluated cloud, and the size errors (see `Scores`)."""
+def score(
+    points: np.ndarray,
+    predicted: np.ndarray,
+    truth: np.ndarray,
+    link_m: float,
+    min_points: int,
+    spacing_m: float,
+    crack_ids: np.ndarray,
+    cracks: list[Crack],
+    min_elongation: float = 0.0,
+) -> Scores:
+    """Precision, recall and F1 of the crack points `predicted`, and the size errors of the reported
+    `cracks` (per-point ids `crack_ids`) against the true cracks of `truth` (see `Scores`). True groups
+    shorter than `min_elongation` times their width (spalls, not cracks) are left out of the size errors
+    as they are left out of the reported cracks, and counted in `true_blobs`."""
     predicted, truth = np.asarray(predicted, bool), np.asarray(truth, bool)
     tp = float(np.sum(predicted & truth))
     precision = tp / max(float(predicted.sum()), 1.0)
     recall = tp / max(float(truth.sum()), 1.0)
     f1 = 2 * precision * recall / max(precision + recall, _EPS)
     nan = float("nan")
-    if not truth.any():
-        return Scores(precision, recall, f1, nan, nan, nan, nan, nan, nan, nan, nan)
-    true_ids = np.zeros(len(points), np.int64)
-    true_ids[truth] = components(points[truth], link_m, 1)
-    main = true_ids == 1
-    true_len, true_wid, *_ = crack_size(points[main])
-    found = main & predicted
-    if found.sum() < 3:
-        return Scores(precision, recall, f1, nan, nan, true_len, true_wid, nan, nan, nan, nan)
-    found_len, found_wid, *_ = crack_size(points[found])
-    pred_ids = np.zeros(len(points), np.int64)
-    pred_ids[predicted] = components(points[predicted], link_m, min_points)
-    overlap = np.bincount(pred_ids[main], minlength=int(pred_ids.max(initial=0)) + 1)
-    overlap[0] = 0
-    inst_len = inst_wid = nan
-    if overlap.max(initial=0) > 0:
-        inst_len, inst_wid, *_ = crack_size(points[pred_ids == int(np.argmax(overlap))])
+    idx = np.flatnonzero(truth)
+    groups = components(points[idx], link_m, min_points) if len(idx) else np.zeros(0, np.int64)
+    if groups.max(initial=0) == 0:
+        return Scores(precision, recall, f1, nan, nan, nan, nan, nan, nan, nan, nan, 0, 0, nan, nan, (), 0)
+    tree = cKDTree(points)
+    reach = 2 * link_m
+    matches = []
+    blobs = 0
+    for k in range(1, int(groups.max()) + 1):  # one iteration per true crack
+        members = idx[groups == k]
+        shape = crack_shape(points[members], spacing_m, link_m, surface_around(tree, points, members, reach))
+        if shape.length < min_elongation * shape.width:
+            blobs += 1
+            continue
+        overlap = np.bincount(crack_ids[members], minlength=len(cracks) + 1)
+        overlap[0] = 0
+        best = int(np.argmax(overlap))
+        found = best > 0 and overlap[best] * 3 >= len(members)
+        c = cracks[best - 1] if found else None
+        matches.append(
+            CrackMatch(
+                shape.length,
+                max(shape.width, spacing_m),
+                len(members),
+                best if found else 0,
+                c.length_m if c else nan,
+                c.width_m if c else nan,
+            )
+        )
+    if not matches:
+        return Scores(precision, recall, f1, nan, nan, nan, nan, nan, nan, nan, nan, 0, 0, nan, nan, (), blobs)
+    main = matches[0]
+    found_m = [m for m in matches if m.crack_id]
+    dl = [abs(m.length_m - m.true_length_m) for m in found_m]
+    dw = [abs(m.width_m - m.true_width_m) for m in found_m]
+    main_pts = idx[groups == 1]  # the study's main crack: the largest true group, whatever its shape
+    study_l = study_w = nan
+    hit = main_pts[predicted[main_pts]]
+    if len(hit) >= 3:
+        tl, tw, *_ = crack_size(points[main_pts])
+        fl, fw, *_ = crack_size(points[hit])
+        study_l, study_w = abs(fl - tl), abs(fw - tw)
     return Scores(
         precision,
         recall,
         f1,
-        abs(found_len - true_len),
-        abs(found_wid - true_wid),
-        true_len,
-        true_wid,
-        found_len,
-        found_wid,
-        abs(inst_len - true_len),
-        abs(inst_wid - true_wid),
+        abs(main.length_m - main.true_length_m),
+        abs(main.width_m - main.true_width_m),
+        main.true_length_m,
+        main.true_width_m,
+        main.length_m,
+        main.width_m,
+        float(np.median(dl)) if dl else nan,
+        float(np.median(dw)) if dw else nan,
+        len(matches),
+        len(found_m),
+        study_l,
+        study_w,
+        tuple(matches),
+        blobs,
     )

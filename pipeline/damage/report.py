@@ -14,13 +14,19 @@ from pipeline.damage.components import extract_elements
 from pipeline.damage.detectors import CLUSTERS_PER_FEATURE, Detector, detect, parse_detector, smooth
 from pipeline.damage.drift import DriftResult, measure_drift
 from pipeline.damage.features import FeatureSet, compute_features, parse_features
-from pipeline.damage.measure import Scores, fit_plane, measure_cracks, point_spacing, score
+from pipeline.damage.measure import Scores, fit_plane, measure_cracks, point_spacing, score, supported
 from pipeline.errors import InputError
 from pipeline.geometry import voxel_downsample
 from pipeline.types import Crack, LabelledCloud, Story
 
 COLUMN_RESOLUTION_M: Final = 0.001  # the study's evaluation grids
 SLAB_RESOLUTION_M: Final = 0.01
+ERROR_DEFINITION: Final = (
+    "length_error_m/width_error_m: the main (largest) true crack (a connected group of the truth mask, linked, "
+    "measured and filtered like a reported crack) against the whole reported crack holding most of its points; "
+    "median_*: the same over every true crack found; study_*: the detected part of the largest true group "
+    "against all of it, by minimum-area rectangle (the study's protocol); widths are openings"
+)
 _SLAB_COS: Final = np.cos(np.deg2rad(30.0))
 
 
@@ -70,12 +76,29 @@ class CrackResult:
                 "f1": s.f1,
                 "length_error_m": _num(s.length_error_m),
                 "width_error_m": _num(s.width_error_m),
+                "error_definition": ERROR_DEFINITION,
                 "true_length_m": _num(s.true_length_m),
                 "true_width_m": _num(s.true_width_m),
                 "found_length_m": _num(s.found_length_m),
                 "found_width_m": _num(s.found_width_m),
-                "instance_length_error_m": _num(s.instance_length_error_m),
-                "instance_width_error_m": _num(s.instance_width_error_m),
+                "median_length_error_m": _num(s.median_length_error_m),
+                "median_width_error_m": _num(s.median_width_error_m),
+                "true_cracks": s.true_cracks,
+                "found_true_cracks": s.found_cracks,
+                "true_blobs": s.true_blobs,
+                "study_length_error_m": _num(s.study_length_error_m),
+                "study_width_error_m": _num(s.study_width_error_m),
+                "true_crack_matches": [
+                    {
+                        "true_length_m": round(m.true_length_m, 4),
+                        "true_width_m": round(m.true_width_m, 4),
+                        "true_points": m.true_points,
+                        "crack_id": m.crack_id,
+                        "length_m": _round(m.length_m),
+                        "width_m": _round(m.width_m),
+                    }
+                    for m in s.matches
+                ],
             }
         out |= {
             "cracks": [crack_json(c) for c in self.cracks],
@@ -95,12 +118,18 @@ def _num(x: float) -> float | None:
     return None if not np.isfinite(x) else float(x)
 
 
+def _round(x: float) -> float | None:
+    return None if not np.isfinite(x) else round(float(x), 4)
+
+
 def crack_json(c: Crack) -> dict[str, Any]:
     return {
         "id": c.instance_id,
         "position": [round(float(v), 4) for v in c.center],
         "length_m": round(c.length_m, 4),
         "width_m": round(c.width_m, 4),
+        "max_width_m": _round(c.max_width_m),
+        "rectangle_width_m": _round(c.rect_width_m),
         "points": c.num_points,
         "axis": [round(float(v), 4) for v in c.axis],
         "normal": [round(float(v), 4) for v in c.normal],
@@ -155,13 +184,20 @@ def find_cracks(
     detection = detect(
         x, det, seed=cfg.seed, fit_points=cfg.fit_points, clusters=CLUSTERS_PER_FEATURE.get(feats.value, 2)
     )
+    raw = detection.mask
     detection = smooth(part.points, detection, cfg.smooth_cell_m, cfg.smooth_keep_raw)
-    mask = detection.mask
+    support_m = cfg.support_spacings * spacing
+    mask = supported(part.points, detection.mask, support_m, cfg.min_support)
     timings["detect"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    core = supported(part.points, mask, support_m, cfg.min_support, by=raw)  # the opening, without the rim
     link = max(cfg.link_m, cfg.link_spacings * spacing)
-    cracks, ids = measure_cracks(part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing)
-    scores = score(part.points, mask, carried, link, cfg.min_crack_points) if carried is not None else None
+    cracks, ids = measure_cracks(
+        part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing, cfg.min_elongation, core=core
+    )
+    scores = None
+    if carried is not None:
+        scores = score(part.points, mask, carried, link, cfg.min_crack_points, spacing, ids, cracks, cfg.min_elongation)
     timings["measure"] = time.perf_counter() - t0
     return CrackResult(
         cloud=part,
