@@ -150,8 +150,9 @@ class DriftConfig(_Section):
     wall_min_points: int = 150
     wall_s_min: float = 0.05  # walls are read between these fractions of the local story height (beams
     wall_s_max: float = 0.78  # hang below the ceiling down to about 0.85)
+    wall_end_s: float = 0.12  # a wall's foot and head are read in windows this share of the story high
     wall_min_count: int = 3  # tall walls/columns needed for a story's drift
-    wall_huber_m: float = 0.002  # a wall whose lean disagrees by more is weighed down (IRLS)
+    wall_outlier_m: float = 0.006  # a wall whose lean disagrees by more is left out (IRLS, Tukey)
     slab_pad_m: float = 0.3  # a slab plane is sought this far around its density band (tilted slabs)
     seed: int = 0
 

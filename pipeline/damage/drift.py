@@ -22,6 +22,7 @@ from pipeline.types import Story
 
 _MIN_SLAB_POINTS: Final = 50
 _RANSAC_SCORE_POINTS: Final = 4000  # hypotheses are scored on a sample; the winner is refined on all points
+_MIN_END_POINTS: Final = 20  # points in the window next to a wall's foot or head
 
 
 class Gravity(StrEnum):
@@ -174,19 +175,41 @@ def story_fraction(pts: np.ndarray, floor: np.ndarray, ceiling: np.ndarray) -> n
     return (pts[:, 2] - zf) / np.maximum(zc - zf, 1e-6)
 
 
+def _line(s: np.ndarray, offset: np.ndarray) -> np.ndarray | None:
+    """Straight line (slope, intercept) of offset against s, refitted twice without points more than three
+    deviations (at least 2 mm) off it: door leaves and frames flush with a wall do not lean with it."""
+    keep = np.ones(len(s), bool)
+    line = None
+    for _ in range(3):
+        if keep.sum() < _MIN_END_POINTS or np.ptp(s[keep]) < 0.03:
+            return None
+        line = np.polyfit(s[keep], offset[keep], 1)
+        res = np.abs(np.polyval(line, s) - offset)
+        keep = res < max(3.0 * 1.4826 * np.median(res[keep]), 0.002)
+    return line
+
+
 def story_walls(
     pts: np.ndarray, floor: np.ndarray, ceiling: np.ndarray, cfg: DriftConfig, rng: np.random.Generator
 ) -> list[_Wall]:
     """Tall vertical faces (walls, columns) of the story between two slab planes, each with how far it leans.
 
     Points are placed by their story fraction s (`story_fraction`), which follows the floor and ceiling
-    planes wherever they are tilted; beams under the ceiling (s above `wall_s_max`) are left out. A face
-    is taken when it covers the story from near the floor to near the beams (furniture, doors and windows
-    do not, and they do not lean with the story); its lean is the slope of the offset along its normal
-    against s (least squares), i.e. the offset of its top (s = 1) against its bottom (s = 0)."""
+    planes wherever they are tilted. Faces are found by RANSAC between `wall_s_min` and `wall_s_max`
+    (below the beams, which hide the heads of walls on column lines); a face is taken when it covers that
+    span (furniture, doors and windows do not, and they do not lean with the story). Its lean is the offset
+    along its normal of its head (s = 1) against its foot (s = 0), each from a straight line fitted in a
+    window (`wall_end_s` of the story high) at the bottom and at the top of that span, carried to s = 0 and
+    s = 1: between the ends a wall whose slabs turned differently bows, and its pieces below windows and
+    above doors bow differently, but every piece runs straight to the slab it is fixed to."""
     s = story_fraction(pts, floor, ceiling)
-    keep = (s > cfg.wall_s_min) & (s < cfg.wall_s_max)
-    rest, rest_s = pts[keep], s[keep]
+    mid = (s > cfg.wall_s_min) & (s < cfg.wall_s_max)
+    rest, rest_s = pts[mid], s[mid]
+    windows = [
+        (0.02, 0.02 + cfg.wall_end_s),
+        (0.98 - cfg.wall_end_s, 0.98),
+        (cfg.wall_s_max - cfg.wall_end_s, cfg.wall_s_max),
+    ]
     walls: list[_Wall] = []
     for _ in range(cfg.wall_planes):  # one iteration per plane
         if len(rest) < cfg.wall_min_points:
@@ -197,12 +220,30 @@ def story_walls(
         on, on_s = rest[inliers], rest_s[inliers]
         rest, rest_s = rest[~inliers], rest_s[~inliers]
         lo, hi = np.percentile(on_s, [2, 98])
-        if abs(plane[2]) > 0.1 or lo > cfg.wall_s_min + 0.15 or hi < cfg.wall_s_max - 0.15:
+        if abs(plane[2]) > 0.1 or lo > cfg.wall_s_min + 0.1 or hi < cfg.wall_s_max - 0.08:
             continue
         normal = plane[:2] / np.linalg.norm(plane[:2])
-        offset = on[:, :2] @ normal
-        a = np.c_[np.ones(len(on)), on_s]
-        lean = float(np.linalg.lstsq(a, offset, rcond=None)[0][1])
+        whole = _line(on_s, on[:, :2] @ normal)
+        if whole is None:
+            continue
+        along = np.array([-normal[1], normal[0]])
+        u = on[:, :2] @ along
+        box = (np.abs(pts @ plane[:3] + plane[3]) < 1.5 * cfg.wall_threshold_m) & (
+            (pts[:, :2] @ along > u.min()) & (pts[:, :2] @ along < u.max())
+        )
+        near, near_s = pts[box], s[box]
+        offset = near[:, :2] @ normal
+        # Points of the wall itself follow the whole wall's line within a few mm (its bow); a beam face in
+        # front of its head, or a hanging slab panel, does not.
+        on_wall = np.abs(np.polyval(whole, near_s) - offset) < cfg.wall_outlier_m
+        ends = []
+        for w_lo, w_hi in windows:
+            sel = on_wall & (near_s > w_lo) & (near_s < w_hi)
+            ends.append(_line(near_s[sel], offset[sel]))
+        foot, head = ends[0], ends[1] if ends[1] is not None else ends[2]
+        if foot is None or head is None:
+            continue
+        lean = float(np.polyval(head, 1.0) - np.polyval(foot, 0.0))
         walls.append(_Wall(normal, on[:, :2].mean(axis=0), lean, len(on)))
     return walls
 
@@ -210,6 +251,20 @@ def story_walls(
 def _rotation(normal: np.ndarray) -> np.ndarray:
     """Rotation (3, 3) taking +z to `normal` by the shortest turn (how a level with that normal turned)."""
     return _level(np.zeros((0, 3)), normal).T
+
+
+def _consensus(a: np.ndarray, rhs: np.ndarray, support: np.ndarray, tol: float) -> np.ndarray:
+    """Start for the robust fit: of the drifts solved from every pair of walls facing different ways, the
+    one most walls (by support) agree with to within `tol`."""
+    i, j = np.triu_indices(len(a), 1)
+    pair = np.stack([a[i, :2], a[j, :2]], axis=1)  # (P, 2, 2)
+    ok = np.abs(np.linalg.det(pair)) > 0.3
+    if not ok.any():
+        return np.linalg.lstsq(a, rhs, rcond=None)[0]
+    d = np.linalg.solve(pair[ok], np.stack([rhs[i[ok]], rhs[j[ok]]], axis=1)[..., None])[..., 0]
+    agree = (np.abs(a[:, :2] @ d.T - rhs[:, None]) < tol) * support[:, None]
+    best = d[int(np.argmax(agree.sum(axis=0)))]
+    return np.append(best, 0.0)
 
 
 def story_step(
@@ -227,7 +282,8 @@ def story_step(
     thickness below where the upper level's drift is taken; both levels turned (their slab normals). So its
     lean along its normal n is n · (D + (R_up - I)(r, -t) - (R_low - I)(r, 0) + ω × r): D is the drift
     step, ω a small turn about z that tilts do not show. D and ω by least squares, walls that disagree
-    (Huber) weighed down. None when fewer than `wall_min_count` walls or they face fewer than two ways."""
+    by more than `wall_outlier_m` (doors ajar, furniture) left out. None when fewer than `wall_min_count`
+    walls or they face fewer than two ways."""
     if len(walls) < cfg.wall_min_count:
         return None
     n = np.array([w.normal for w in walls])
@@ -241,12 +297,12 @@ def story_step(
     if sv[-1] < 0.2 * sv[0]:
         return None  # all walls face one way: the other drift component is not seen
     base = np.sqrt(np.array([w.points for w in walls], np.float64))
-    weight = base.copy()
-    x = np.zeros(3)
-    for _ in range(10):  # iteratively reweighted least squares (Huber)
+    x = _consensus(a, rhs, base, cfg.wall_outlier_m)
+    for _ in range(10):  # iteratively reweighted least squares, Tukey's biweight
+        weight = base * np.clip(1.0 - ((a @ x - rhs) / cfg.wall_outlier_m) ** 2, 0.0, None) ** 2
+        if np.count_nonzero(weight) < cfg.wall_min_count:
+            return None
         x = np.linalg.lstsq(a * weight[:, None], rhs * weight, rcond=None)[0]
-        res = np.abs(a @ x - rhs)
-        weight = base * np.minimum(1.0, cfg.wall_huber_m / np.maximum(res, 1e-9))
     return x[:2]
 
 
