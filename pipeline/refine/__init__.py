@@ -78,7 +78,12 @@ def refine_cloud(
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
-    seg = Grower(vc, net, cfg).segment(record_object)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # thousands of small products: extra threads only add overhead (measured 20x slower)
+    try:
+        seg = Grower(vc, net, cfg).segment(record_object)
+    finally:
+        torch.set_num_threads(threads)
     labels = attach_small_segments(vc.points, seg.labels, cfg.min_segment_points)
     steps = None
     if seg.history is not None:

@@ -83,11 +83,13 @@ def fpfh_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> 
 
 def mcpnet_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:
     """Components over MCPNet's embeddings of the voxel points (the clustering stage's rule, β indoor)."""
-    from pipeline.labellers.mcpnet import embed_cloud
+    from pipeline.config import Config
+    from pipeline.labellers.mcpnet import create
 
     vox = cloud.select(vc.first_point)
     vox.points = vc.points
-    return similarity_components(vc, np.asarray(embed_cloud(vox), np.float64), cfg.mcpnet_similarity)
+    embeddings = create(Config()).embed_cloud(vox)
+    return similarity_components(vc, np.asarray(embeddings, np.float64), cfg.mcpnet_similarity)
 
 
 BASELINES: Final[dict[Baseline, Callable[[LabelledCloud, VoxelCloud, LRGNetConfig], np.ndarray]]] = {
@@ -101,10 +103,10 @@ BASELINES: Final[dict[Baseline, Callable[[LabelledCloud, VoxelCloud, LRGNetConfi
 def available() -> list[Baseline]:
     """The baselines this checkout can run (MCPNet's embedding needs its labeller)."""
     try:
-        from pipeline.labellers.mcpnet import embed_cloud  # noqa: F401
+        from pipeline.labellers.mcpnet import MCPNetLabeller
     except ImportError:
         return [b for b in Baseline if b != Baseline.MCPNET]
-    return list(Baseline)
+    return list(Baseline) if hasattr(MCPNetLabeller, "embed_cloud") else [b for b in Baseline if b != Baseline.MCPNET]
 
 
 def run_baseline(name: Baseline, cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:

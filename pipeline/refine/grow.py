@@ -63,18 +63,19 @@ class Grower:
         self.cfg = cfg
         self.rng = np.random.default_rng(cfg.seed)
         self.labelled = np.zeros(len(vc), bool)
-        self._in_region = np.zeros(len(vc), bool)
+        self._touched = np.zeros(len(vc), bool)
         self.network_steps = 0
 
     # --- one step -----------------------------------------------------------------------------------------
     def neighbours(self, region: np.ndarray) -> np.ndarray:
         """Unlabelled voxels touching the region and not in it."""
         nb = self.vc.adjacency[region].ravel()
-        nb = np.unique(nb[nb >= 0])
-        self._in_region[region] = True
-        keep = ~self.labelled[nb] & ~self._in_region[nb]
-        self._in_region[region] = False
-        return nb[keep]
+        nb = nb[nb >= 0]
+        self._touched[nb] = True  # a scratch mask instead of np.unique: no sort of |region| x 26 entries
+        self._touched[region] = False
+        out = np.flatnonzero(self._touched)
+        self._touched[out] = False
+        return out[~self.labelled[out]]
 
     def _sample(self, idx: np.ndarray, size: int) -> np.ndarray:
         # "With replacement when fewer" only repeats points, which cannot change a max-pool: pass them once.
