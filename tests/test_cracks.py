@@ -91,7 +91,7 @@ def test_opening_width_of_a_wandering_crack(width: float) -> None:
     shape = crack_shape(pts[inside], 0.002, surface=pts)
     assert shape.length == pytest.approx(1.0, abs=0.01)
     assert shape.rect_width > 0.1
-    assert shape.width == pytest.approx(width, abs=0.002)
+    assert shape.width == pytest.approx(width, abs=0.0025)  # about one spacing
     assert abs(shape.normal[2]) > 0.999
 
 

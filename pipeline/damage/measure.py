@@ -121,6 +121,16 @@ class CrackShape:
     strands: int  # slices-strands the width was measured on (0 = too few points: width = rectangle width)
 
 
+def _local_opening(xy: np.ndarray, spacing_m: float, sample: int = 2000) -> float:
+    """Typical opening of a crack from how many of its points lie around each one: a strip of width w
+    holds about 2 r w / h² points within r of a point on it (h the spacing). Local, so that a network of
+    crossing cracks is not taken for one wide crack; saturates near 1.6 r for a broad band."""
+    radius = 5 * spacing_m
+    pick = xy[:: max(1, len(xy) // sample)]
+    count = cKDTree(xy).query_ball_point(pick, radius, return_length=True, workers=-1)
+    return float(np.median(count)) * spacing_m**2 / (2 * radius)
+
+
 def _strand_widths(xy: np.ndarray, rect: Rectangle, spacing_m: float, gap_m: float) -> np.ndarray:
     """Width across each strand: the rectangle's long axis is cut into slices a few crack widths long; the
     points of a slice split into strands where they are more than `gap_m` apart across it; each strand's
@@ -131,8 +141,7 @@ def _strand_widths(xy: np.ndarray, rect: Rectangle, spacing_m: float, gap_m: flo
     v = np.array([-u[1], u[0]])
     t = (xy - rect.center) @ u
     s = (xy - rect.center) @ v
-    rough = max(len(xy) * h * h / max(rect.length, h), h)  # area / length: the mean opening, roughly
-    slice_m = 3.0 * max(rough, 2 * h)
+    slice_m = 3.0 * max(_local_opening(xy, h), 2 * h)
     cut = np.floor((t - t.min()) / slice_m).astype(np.int64)
     order = np.lexsort((s, cut))
     cut, s_o, xy_o = cut[order], s[order], xy[order]
@@ -145,6 +154,10 @@ def _strand_widths(xy: np.ndarray, rect: Rectangle, spacing_m: float, gap_m: flo
     cyy = np.bincount(strand, d[:, 1] * d[:, 1])
     cxy = np.bincount(strand, d[:, 0] * d[:, 1])
     angle = 0.5 * np.arctan2(2 * cxy, cxx - cyy)  # principal direction of each strand
+    spread = np.sqrt((cxx - cyy) ** 2 + 4 * cxy**2)
+    oriented = (cxx + cyy + spread) >= 2.25 * (cxx + cyy - spread)  # principal axes at least 1.5 : 1
+    # a strand wider than long (a broad band cut short) has no direction of its own: across the long axis
+    angle = np.where(oriented, angle, np.arctan2(u[1], u[0]))
     across = d[:, 0] * -np.sin(angle[strand]) + d[:, 1] * np.cos(angle[strand])
     starts = np.flatnonzero(new)
     extent = np.maximum.reduceat(across, starts) - np.minimum.reduceat(across, starts)
