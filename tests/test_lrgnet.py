@@ -288,3 +288,12 @@ def test_refine_command_bad_input(tmp_path: Path, weights_file: Path, capsys: py
     with pytest.raises(InputError, match="not an LRGNet weights file"):
         torch.save({"x": 1}, tmp_path / "other.pt")
         load_weights(tmp_path / "other.pt", weight_settings(LRGNetConfig()))
+
+
+def test_shipped_weights_segment_a_simple_room() -> None:
+    """The shipped weights load with the default settings and find the room's surfaces and boxes."""
+    cloud = small_room()
+    res = refine_cloud(cloud, LRGNetConfig())
+    s = scores(cloud.instance_ids, res.instance_ids)
+    assert s["nmi"] > 0.6 and s["ari"] > 0.4, s
+    assert np.mean(res.steps_per_object) > 1
