@@ -296,7 +296,7 @@ def story_step(
     sv = np.linalg.svd(n, compute_uv=False)
     if sv[-1] < 0.2 * sv[0]:
         return None  # all walls face one way: the other drift component is not seen
-    base = np.sqrt(np.array([w.points for w in walls], np.float64))
+    base = np.ones(len(walls))
     x = _consensus(a, rhs, base, cfg.wall_outlier_m)
     for _ in range(10):  # iteratively reweighted least squares, Tukey's biweight
         weight = base * np.clip(1.0 - ((a @ x - rhs) / cfg.wall_outlier_m) ** 2, 0.0, None) ** 2
