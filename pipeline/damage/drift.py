@@ -138,7 +138,8 @@ class _Surface:
 
 def _surfaces(band: np.ndarray, cfg: DriftConfig, rng: np.random.Generator) -> list[_Surface]:
     """The horizontal surfaces of one slab band, lowest first: its underside (a ceiling) and/or its top (a
-    floor), when both were seen."""
+    floor), when both were seen. A second plane with open space between it and the first (beam bottoms
+    under a roof seen only from below) is not the slab's other face."""
     out: list[_Surface] = []
     rest = band
     for _ in range(2):
@@ -151,9 +152,19 @@ def _surfaces(band: np.ndarray, cfg: DriftConfig, rng: np.random.Generator) -> l
         if out and count < 0.2 * out[0].points:
             break
         on = rest[inliers]
-        out.append(_Surface(plane, footprint_centre(on), count, float(np.median(on[:, 2]))))
         rest = rest[~inliers]
+        if out and _between(rest, out[0].plane, plane) > 0.5 * count:
+            break  # open space between them (beam sides): beam bottoms under a ceiling, not a slab's two faces
+        out.append(_Surface(plane, footprint_centre(on), count, float(np.median(on[:, 2]))))
     return sorted(out, key=lambda s: s.height)
+
+
+def _between(pts: np.ndarray, a: np.ndarray, b: np.ndarray, margin_m: float = 0.03) -> int:
+    """Points strictly between two nearly horizontal planes (none inside a solid slab)."""
+    za = -(pts[:, :2] @ a[:2] + a[3]) / a[2]
+    zb = -(pts[:, :2] @ b[:2] + b[3]) / b[2]
+    lo, hi = np.minimum(za, zb), np.maximum(za, zb)
+    return int(np.count_nonzero((pts[:, 2] > lo + margin_m) & (pts[:, 2] < hi - margin_m)))
 
 
 @dataclass(slots=True)
