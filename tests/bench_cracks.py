@@ -280,24 +280,35 @@ def test_per_crack_sizes(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) 
 
 
 def test_drift_on_simulated_buildings() -> None:
+    """Drift and tilt of every level of damaged simulated buildings against the truth, at static-scan
+    spacings; target ≤ 2 mm and ≤ 0.05°."""
     from pipeline.damage.drift import measure_drift
     from sources.simulator.building import build_scene
 
-    print("\nStory drift and tilt on simulated damaged buildings (static scan, 5 cm spacing):")
     worst_tilt, worst_drift = 0.0, 0.0
-    for seed in (1, 2, 3):
-        scene = build_scene("disaster", seed)
-        cloud = scene.sample_static_cloud(0.05, seed=0)
-        result = measure_drift(cloud.points, DriftConfig())
-        levels = scene.truth.levels
-        print(f"  building {seed}: {len(result.stories)} slabs found, {len(levels)} levels")
-        for story, level in zip(result.stories, levels, strict=False):
-            dt = max(abs(story.tilt_x_deg - level.tilt_x_deg), abs(story.tilt_y_deg - level.tilt_y_deg))
-            dd = float(np.hypot(story.drift_x_mm - level.drift_x_mm, story.drift_y_mm - level.drift_y_mm))
-            worst_tilt, worst_drift = max(worst_tilt, dt), max(worst_drift, dd)
+    for spacing, seeds in ((0.05, (1, 2, 3, 4, 5)), (0.03, (1, 2, 3))):
+        print(f"\nStory drift and tilt on simulated damaged buildings (static scan, {spacing * 100:.0f} cm spacing):")
+        for seed in seeds:
+            scene = build_scene("disaster", seed)
+            cloud = scene.sample_static_cloud(spacing, seed=0)
+            t0 = time.perf_counter()
+            result = measure_drift(cloud.points, DriftConfig())
+            took = time.perf_counter() - t0
+            levels = scene.truth.levels
             print(
-                f"    level {level.index}: drift {story.drift_x_mm:+7.1f} {story.drift_y_mm:+7.1f} mm "
-                f"(truth {level.drift_x_mm:+7.1f} {level.drift_y_mm:+7.1f}), tilt {story.tilt_x_deg:+.3f} "
-                f"{story.tilt_y_deg:+.3f}° (truth {level.tilt_x_deg:+.3f} {level.tilt_y_deg:+.3f})"
+                f"  building {seed}: {len(cloud.points)} points, {len(result.stories)} slabs found, "
+                f"{len(levels)} levels, {took:.1f} s"
             )
-    print(f"  worst tilt error {worst_tilt:.4f}°, worst drift error {worst_drift:.1f} mm")
+            assert len(result.stories) == len(levels)
+            for story, level in zip(result.stories, levels, strict=True):
+                dt = max(abs(story.tilt_x_deg - level.tilt_x_deg), abs(story.tilt_y_deg - level.tilt_y_deg))
+                dd = float(np.hypot(story.drift_x_mm - level.drift_x_mm, story.drift_y_mm - level.drift_y_mm))
+                worst_tilt, worst_drift = max(worst_tilt, dt), max(worst_drift, dd)
+                print(
+                    f"    level {level.index}: drift {story.drift_x_mm:+7.1f} {story.drift_y_mm:+7.1f} mm "
+                    f"(truth {level.drift_x_mm:+7.1f} {level.drift_y_mm:+7.1f}, error {dd:.2f}), tilt "
+                    f"{story.tilt_x_deg:+.3f} {story.tilt_y_deg:+.3f}° (truth {level.tilt_x_deg:+.3f} "
+                    f"{level.tilt_y_deg:+.3f})"
+                )
+    print(f"  worst tilt error {worst_tilt:.4f}°, worst drift error {worst_drift:.2f} mm")
+    assert worst_tilt <= 0.05 and worst_drift <= 2.0

@@ -117,15 +117,28 @@ def building() -> tuple[object, LabelledCloud]:
     return scene, scene.sample_static_cloud(0.1, seed=0)
 
 
-def test_simulated_building_tilt(building: tuple[object, LabelledCloud]) -> None:
-    """Every level of a simulated damaged building: tilt within 0.05° of the truth (measured ≤ 0.002°)."""
-    scene, cloud = building
+def _assert_matches_truth(scene: object, cloud: LabelledCloud) -> None:
     result = measure_drift(cloud.points, DriftConfig())
-    levels = scene.truth.levels
+    levels = scene.truth.levels  # type: ignore[attr-defined]
     assert len(result.stories) == len(levels)
     for story, level in zip(result.stories, levels, strict=True):
         assert abs(story.tilt_x_deg - level.tilt_x_deg) <= 0.05
         assert abs(story.tilt_y_deg - level.tilt_y_deg) <= 0.05
+        assert np.hypot(story.drift_x_mm - level.drift_x_mm, story.drift_y_mm - level.drift_y_mm) <= 2.0
+
+
+def test_simulated_building_drift_and_tilt(building: tuple[object, LabelledCloud]) -> None:
+    """Every level of a simulated damaged building (4 levels, 10 cm spacing): drift within 2 mm and tilt
+    within 0.05° of the truth (measured ≤ 1.2 mm, ≤ 0.002°)."""
+    _assert_matches_truth(*building)
+
+
+def test_small_simulated_building_static_scan_drift_and_tilt() -> None:
+    """A small damaged building at a static scan's 5 cm spacing: drift within 2 mm (measured ≤ 0.8 mm)."""
+    from sources.simulator.building import build_scene
+
+    scene = build_scene("disaster", 2)
+    _assert_matches_truth(scene, scene.sample_static_cloud(0.05, seed=0))
 
 
 def test_drift_command_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
