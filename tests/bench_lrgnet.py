@@ -26,7 +26,7 @@ from pipeline.types import LabelledCloud
 pytestmark = pytest.mark.slow
 
 ROOMS_PER_FAMILY: Final = 6
-SEARCH_ROOMS: Final = 2  # rooms per family for the (10x slower) local searches
+SEARCH_ROOMS: Final = 1  # rooms per family for the (~10x slower) local searches
 KEYS: Final = ("nmi", "ami", "ari", "precision", "recall", "mean_iou")
 SPEED_POINTS: Final = 100_000
 
@@ -129,7 +129,7 @@ def test_local_search(rooms: dict[str, list[LabelledCloud]]) -> None:
         sub = rooms[f][:SEARCH_ROOMS]
         w = _weights(f)
         table = {"greedy": _lrgnet(sub, w)}
-        for search, score in (("restart", "np"), ("restart", "ml"), ("beam", "np"), ("beam", "ml")):
+        for search, score in (("restart", "np"), ("beam", "np")):
             table[f"{search} ({score})"] = _lrgnet(sub, w, search=search, score=score)
         _print_table(f"held-out {f} rooms, local search ({SEARCH_ROOMS} rooms)", table, per_scene=False)
 
