@@ -1,5 +1,9 @@
 """Story drift and tilt: floor and ceiling slabs from the point density along the up axis, one RANSAC plane
-per slab, and each upper plane's horizontal drift and tilt against the lowest one.
+per slab face, and each upper slab's horizontal drift and tilt against the lowest one.
+
+Tilt is the slab plane's. Drift is how far a slab's top surface moved horizontally at the building centre:
+summed story by story from how far each story's walls and columns lean between its floor and its ceiling
+(their foot and head read next to the slabs, with the slabs' own turn and thickness accounted for).
 
 Where "up" comes from is stated in every result (`gravity`):
 - `frame-z`: the input frame's z axis is taken as vertical (a map registered from a levelled start, or a
