@@ -148,10 +148,23 @@ def cache_dir() -> Path:
     return Path(os.environ.get("AFTERSHOCK_CACHE", Path.home() / ".cache" / "aftershock")) / "lrgnet"
 
 
+def simulator_version() -> str:
+    """A short hash of the simulator's source: cached buildings of another simulator are not reused."""
+    import hashlib
+
+    import sources.simulator as sim
+
+    digest = hashlib.sha256()
+    for f in sorted(Path(sim.__file__).parent.glob("*.py")):
+        digest.update(f.read_bytes())
+    return digest.hexdigest()[:10]
+
+
 def building_rooms(family: str, seed: int) -> list[LabelledCloud]:
     """The simulator's labelled static cloud of one building, cut into its rooms (with their walls, floor and
-    ceiling), as the study's scenes were rooms. The simulator is deterministic, so rooms are cached on disk."""
-    path = cache_dir() / f"{family}_{seed}_{RAW_SPACING_M:g}_v{CACHE_VERSION}.npz"
+    ceiling), as the study's scenes were rooms. The simulator is deterministic, so rooms are cached on disk,
+    keyed by the simulator's source."""
+    path = cache_dir() / f"{family}_{seed}_{RAW_SPACING_M:g}_v{CACHE_VERSION}_{simulator_version()}.npz"
     if path.is_file():
         z = np.load(path)
         bounds = np.r_[0, np.cumsum(z["sizes"])]
