@@ -95,8 +95,8 @@ class LRGNetConfig(_Section):
     score: str = "ml"  # ml (summed log-likelihood) | np (number of points)
     seed: int = 0
     weights: str | None = None
-    remove_threshold: float = 0.5  # greedy: an inlier goes when P(remove) exceeds this
-    add_threshold: float = 0.5  # greedy: a neighbour joins when P(add) exceeds this
+    remove_threshold: float = 0.9  # greedy: an inlier goes when P(remove) exceeds this (its loss is class-balanced)
+    add_threshold: float = 0.3  # greedy: a neighbour joins when P(add) exceeds this; both tuned on validation rooms
     # Baselines run beside LRGNet (pipeline.refine.baselines)
     baseline_normal_angle_deg: float = 10.0  # threshold region growing: normals within this angle (tuned)
     baseline_color_distance: float = 0.12  # ... and RGB (0..1) closer than this
