@@ -262,15 +262,19 @@ def train_mcpnet(pool: Pool, cfg: NetConfig, epochs: int, seed: int, log: bool =
             acc += float((logits.argmax(1) == labels).float().mean())
         history.append({"epoch": epoch + 1, "triplet": tot_t / steps, "ce": tot_c / steps, "acc": acc / steps})
         if log:
-            h = history[-1]
-            print(
-                f"[{cfg.kind}] epoch {epoch + 1}/{epochs}: triplet {h['triplet']:.3f} ce {h['ce']:.3f} "
-                f"acc {h['acc']:.3f} ({time.perf_counter() - start:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
+            _log_epoch(cfg.kind, epochs, history[-1], start)
     model.eval()
     return model, {"steps_per_epoch": steps, "history": history, "seconds": round(time.perf_counter() - start, 1)}
+
+
+def _log_epoch(kind: str, epochs: int, h: dict[str, float], start: float) -> None:
+    """One progress line per training epoch, on stderr."""
+    print(
+        f"[{kind}] epoch {h['epoch']}/{epochs}: triplet {h['triplet']:.3f} ce {h['ce']:.3f} "
+        f"acc {h['acc']:.3f} ({time.perf_counter() - start:.0f} s)",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 # ----------------------------------------------------------------------------------------------- PointNet
@@ -345,13 +349,7 @@ def train_pointnet(
             acc += float((logits.argmax(-1)[valid] == lab[valid]).float().mean())
         history.append({"epoch": epoch + 1, "triplet": tot_t / steps, "ce": tot_c / steps, "acc": acc / steps})
         if log:
-            h = history[-1]
-            print(
-                f"[pointnet] epoch {epoch + 1}/{epochs}: triplet {h['triplet']:.3f} ce {h['ce']:.3f} "
-                f"acc {h['acc']:.3f} ({time.perf_counter() - start:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
+            _log_epoch("pointnet", epochs, history[-1], start)
     model.eval()
     return model, {"steps_per_epoch": steps, "history": history, "seconds": round(time.perf_counter() - start, 1)}
 
