@@ -69,6 +69,10 @@ class LabelConfig(_Section):
 class ClusterConfig(_Section):
     beta_indoor: float = 0.9  # cosine similarity of embeddings needed to link two voxels
     beta_outdoor: float = 0.92
+    # Labellers with embeddings: neighbouring instances merge when their mean embeddings agree this well
+    # (cosine similarity); > 1 turns it off.
+    merge_beta: float = 0.9
+    link_reach_voxels: int = 1  # a new voxel links to voxels up to this many voxels away (1 = the 26 around it)
     normal_angle_deg: float = 20.0  # region-growing baseline: neighbouring normals within this angle
     color_distance: float = 0.12  # region-growing baseline: RGB distance in [0, 1] units
 
@@ -86,8 +90,9 @@ class LRGNetConfig(_Section):
     inliers: int = 512  # I
     neighbours: int = 512  # J
     delta_m: float = 0.1  # δ: neighbour set = unlabelled points within this distance of the region
-    max_steps: int = 60
+    max_steps: int = 200  # a floor grows by one voxel ring a step: 60 cut large floors and ceilings apart
     min_segment_points: int = 10
+    seed_min_neighbours: int = 6  # seeds: voxels with fewer occupied neighbours come after all others
     search: str = "greedy"  # greedy | restart | beam
     restarts: int = 10
     beam_width: int = 3
