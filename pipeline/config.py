@@ -10,7 +10,7 @@ import json
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -131,6 +131,12 @@ class CrackConfig(_Section):
     min_elongation: float = 3.0  # a reported crack is at least this many times longer than its opening is wide
     max_spacing_m: float = 0.02  # coarser clouds are refused as too sparse to measure cracks
     fit_points: int = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
+    # "valley": the anomaly detectors' threshold is raised to the valley before a separate mode of high scores
+    # (one at least valley_rise times denser than the valley) when the scores have one; "detector": never
+    threshold: Literal["valley", "detector"] = "valley"
+    valley_rise: float = 2.0
+    grow_m: float = 0.03  # after the support rule (0 = off), points this close to a crack whose smoothed score ...
+    grow_sigmas: float = 0.25  # ... is above the threshold less this many robust sigmas of the scores join it
     weights: str | None = None  # CrackEmbed weights; None = the shipped ones
     element_voxel_m: float = 0.05  # element extraction: region growing on this grid ...
     element_radius_m: float = 0.1  # ... joining neighbours within this distance ...

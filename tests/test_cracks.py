@@ -13,7 +13,7 @@ import torch
 from pipeline.cli import main
 from pipeline.cloud_io import read_cloud, write_cloud
 from pipeline.config import CrackConfig
-from pipeline.damage.detectors import Detector, detect
+from pipeline.damage.detectors import Detector, detect, grow, valley_threshold
 from pipeline.damage.features import FeatureSet, compute_features
 from pipeline.damage.measure import crack_shape, measure_cracks, min_area_rectangle, supported
 from pipeline.damage.report import find_cracks
@@ -174,8 +174,10 @@ def test_every_detector_flags_planted_outliers(detector: Detector) -> None:
 
 def test_find_cracks_on_a_synthetic_wall() -> None:
     """A 0.3 m wall patch, tilted in space, with two dark recessed cracks (25 and 12 mm wide) covering ~10 %
-    of it (as the field data's 5-15 %). Measured: F1 0.86 (recall 1.0, precision 0.75: the 2 cm smoothing
-    still rims the cracks with some sound concrete); reported widths 29 and 17 mm."""
+    of it (as the field data's 5-15 %), far darker than the field's cracks (40 % against 10-20 %). The scores
+    have a separate crack mode, so the threshold rises to its valley. Measured: F1 0.94 without the rim growth
+    (recall 1.0, lengths +4 mm, widths +4 / +3 mm); with it (the default) F1 0.89: the growth re-admits a
+    rim of about one smoothing cell around such high-contrast cracks (lengths +25 mm, widths +8 / +13 mm)."""
     rng = np.random.default_rng(2)
     u, v = np.meshgrid(np.arange(0, 0.3, 0.002), np.arange(0, 0.3, 0.002), indexing="ij")
     uv = np.c_[u.ravel(), v.ravel()] + rng.uniform(-0.0004, 0.0004, (u.size, 2))
@@ -186,17 +188,51 @@ def test_find_cracks_on_a_synthetic_wall() -> None:
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     pts = np.c_[uv, depth] @ q.T + [1.0, 2.0, 1.5]
     colors = np.clip(np.where(mask, 120.0, 200.0)[:, None] + rng.normal(0, 10, (len(pts), 3)), 0, 255).astype(np.uint8)
-    result = find_cracks(LabelledCloud(pts, colors), CrackConfig(), mask, resolution_m=0.001)
-    s = result.scores
-    assert s is not None and s.f1 > 0.8, s
-    assert s.recall > 0.95
+    cloud = LabelledCloud(pts, colors)
+    tight = find_cracks(cloud, CrackConfig(grow_m=0.0), mask, resolution_m=0.001)
+    s = tight.scores
+    assert s is not None and s.f1 > 0.9 and s.recall > 0.95, s
     # The study's protocol (the detected part of the main true crack) flatters: near exact.
     assert s.study_length_error_m < 0.005 and s.study_width_error_m < 0.003
     # What a field team reads: the whole reported crack, false positives linked onto it included.
     assert s.true_cracks == s.found_cracks == 2
     assert s.length_error_m < 0.01 and s.width_error_m < 0.006
     assert all(abs(m.width_m - m.true_width_m) < 0.006 for m in s.matches)
-    assert len(result.cracks) == 2 and all(c.length_m > c.rect_width_m >= c.width_m > 0 for c in result.cracks)
+    assert len(tight.cracks) == 2 and all(c.length_m > c.rect_width_m >= c.width_m > 0 for c in tight.cracks)
+    default = find_cracks(cloud, CrackConfig(), mask, resolution_m=0.001)
+    d = default.scores
+    assert d is not None and d.f1 > 0.85 and d.recall > 0.95, d
+    assert d.true_cracks == d.found_cracks == 2 and len(default.cracks) == 2
+    assert d.length_error_m < 0.03 and all(0 <= m.width_m - m.true_width_m < 0.015 for m in d.matches)
+    # no crack is lost and none is joined to the other
+    assert default.mask[tight.mask].all() and len({m.crack_id for m in d.matches}) == 2
+
+
+def test_valley_threshold_finds_a_separate_mode_and_only_then() -> None:
+    """A separate high mode (5 % of the scores) moves the threshold into the gap before it; one skewed mode
+    (a heavy tail, no second mode) leaves the detector's threshold; the threshold never drops below it."""
+    rng = np.random.default_rng(0)
+    sound = rng.normal(-0.1, 0.03, 19000)
+    two = np.r_[sound, rng.normal(0.17, 0.015, 1000)]
+    t = valley_threshold(two, 0.0)
+    assert 0.02 < t < 0.14
+    f1 = 2 * (two[19000:] > t).sum() / ((two > t).sum() + 1000)
+    assert f1 > 0.97 and 2 * (two[19000:] > 0).sum() / ((two > 0).sum() + 1000) < f1
+    assert valley_threshold(np.r_[sound, -0.1 + rng.exponential(0.08, 3000)], 0.0) == 0.0
+    assert valley_threshold(two, 0.5) == 0.5
+    assert valley_threshold(np.zeros(100), 0.0) == 0.0
+
+
+def test_grow_joins_weak_points_near_a_crack_only() -> None:
+    pts = np.c_[np.arange(10) * 0.01, np.zeros(10), np.zeros(10)]
+    mask = np.zeros(10, bool)
+    mask[:3] = True
+    score = np.array([1, 1, 1, 0.5, 0.5, 0.5, -1, 0.5, 0.5, 0.5])
+    # within 1.5 cm of the crack and above 0: point 3, then nothing further (one step, not a flood)
+    assert np.flatnonzero(grow(pts, mask, score, 0.0, 0.015)).tolist() == [0, 1, 2, 3]
+    assert np.flatnonzero(grow(pts, mask, score, 0.0, 0.035)).tolist() == [0, 1, 2, 3, 4, 5]
+    assert np.array_equal(grow(pts, mask, score, 0.0, 0.0), mask)
+    assert not grow(pts, np.zeros(10, bool), score, 0.0, 0.05).any()
 
 
 @pytest.fixture(scope="module")
@@ -204,9 +240,11 @@ def crack_files(crack_dir: Path) -> dict[str, tuple[Path, Path]]:
     return {n: (crack_dir / f"{n}.ply", crack_dir / f"{n}_mask.npy") for n in ("column1", "column2", "slab2")}
 
 
-# Measured with the shipped settings (shade+crackembed, isolation forest, 2 cm smoothing keeping each point's own
-# score, support clean-up): 0.650 / 0.686 / 0.794; the original method published 0.55 / 0.67 / about 0.75.
-F1_AT_LEAST = {"column1": 0.63, "column2": 0.665, "slab2": 0.77}
+# Measured with the shipped settings (shade+crackembed, isolation forest, valley threshold, 2 cm smoothing
+# keeping each point's own score, support clean-up, 3 cm growth): F1 0.720 / 0.711 / 0.797 (the original method
+# published 0.55 / 0.67 / about 0.75); main-crack width error 0.8 / 2.8 / 9.7 mm (the slab on its 1 cm grid).
+F1_AT_LEAST = {"column1": 0.70, "column2": 0.70, "slab2": 0.77}
+WIDTH_ERROR_AT_MOST = {"column1": 0.004, "column2": 0.004, "slab2": 0.012}
 
 
 @pytest.mark.parametrize("name", ["column1", "column2", "slab2"])
@@ -218,6 +256,7 @@ def test_cracks_command_on_real_elements(
     out = json.loads(capsys.readouterr().out)
     assert set(out) >= {"precision", "recall", "f1", "length_error_m", "width_error_m", "cracks"}
     assert out["f1"] >= F1_AT_LEAST[name]
+    assert out["width_error_m"] <= WIDTH_ERROR_AT_MOST[name]
     assert out["resolution_m"] == (0.01 if name == "slab2" else 0.001)
     assert out["cracks"] and all({"length_m", "width_m", "position"} <= set(c) for c in out["cracks"])
     assert all(c["width_m"] <= max(c["rectangle_width_m"], out["spacing_m"]) + 1e-4 for c in out["cracks"])

@@ -53,6 +53,12 @@ class Detection:
         return self.score > self.threshold
 
 
+# Detectors with a continuous anomaly score (the clustering baselines give 0/1 memberships).
+ANOMALY_DETECTORS: Final = frozenset(
+    {Detector.ISOLATION_FOREST, Detector.ROBUST_COVARIANCE, Detector.ONE_CLASS_SVM, Detector.LOCAL_OUTLIER_FACTOR}
+)
+
+
 def parse_detector(name: str) -> Detector:
     try:
         return Detector(name)
@@ -173,3 +179,50 @@ def smooth(points: np.ndarray, detection: Detection, cell_m: float, keep_raw: bo
     if keep_raw:
         score = np.maximum(score, detection.score)
     return Detection(score, detection.threshold)
+
+
+def valley_threshold(score: np.ndarray, floor: float, rise: float = 2.0, bins: int = 200) -> float:
+    """The contamination read from the scores themselves: when the histogram of the scores (1st to 99.9th
+    per-mille, lightly smoothed) falls from its main mode to a valley and rises again to a second mode at least
+    `rise` times as dense as the valley, the deepest such valley is the threshold; otherwise `floor` (the
+    detector's own threshold). Never below `floor`. Cracks that stand apart from sound concrete form such a
+    mode; where they blend into it (wide damaged zones) there is none and the detector's threshold stays."""
+    from scipy.ndimage import gaussian_filter1d
+
+    s = np.asarray(score, np.float64)
+    lo, hi = np.quantile(s, [0.001, 0.999])
+    if not hi > lo:
+        return float(floor)
+    hist, edges = np.histogram(s, bins, (lo, hi))
+    h = gaussian_filter1d(hist.astype(np.float64), 3.0)
+    centres = (edges[:-1] + edges[1:]) / 2
+    mode = int(np.argmax(h))
+    after = np.r_[np.maximum.accumulate(h[::-1])[::-1][1:], 0.0]  # the densest bin beyond each bin
+    i = np.arange(1, bins - 1)
+    valley = i[(i > mode) & (h[i] <= h[i - 1]) & (h[i] <= h[i + 1]) & (after[i] >= rise * h[i])]
+    if len(valley) == 0:
+        return float(floor)
+    return float(max(centres[valley[np.argmin(h[valley])]], floor))
+
+
+def grow(points: np.ndarray, mask: np.ndarray, score: np.ndarray, threshold: float, reach_m: float) -> np.ndarray:
+    """`mask` plus the points within `reach_m` of it whose `score` is above `threshold` (a lower one than the
+    detection's): hysteresis held close to the crack. A crack's weaker points — the thin ends and sides of a
+    crack that the support rule trims, the crushed rim of a wide one — join it; weak points elsewhere do not."""
+    mask = np.asarray(mask, bool)
+    if reach_m <= 0 or not mask.any():
+        return mask.copy()
+    from scipy.spatial import cKDTree
+
+    cand = np.flatnonzero(~mask & (score > threshold))
+    out = mask.copy()
+    if len(cand):
+        dist, _ = cKDTree(points[mask]).query(points[cand], k=1, distance_upper_bound=reach_m, workers=-1)
+        out[cand[np.isfinite(dist)]] = True
+    return out
+
+
+def robust_sigma(x: np.ndarray) -> float:
+    """1.4826 × the median absolute deviation: the spread of the bulk of the scores (sound concrete)."""
+    x = np.asarray(x, np.float64)
+    return float(1.4826 * np.median(np.abs(x - np.median(x))))

@@ -11,7 +11,18 @@ import numpy as np
 
 from pipeline.config import Config, CrackConfig
 from pipeline.damage.components import extract_elements
-from pipeline.damage.detectors import CLUSTERS_PER_FEATURE, Detector, detect, parse_detector, smooth
+from pipeline.damage.detectors import (
+    ANOMALY_DETECTORS,
+    CLUSTERS_PER_FEATURE,
+    Detection,
+    Detector,
+    detect,
+    grow,
+    parse_detector,
+    robust_sigma,
+    smooth,
+    valley_threshold,
+)
 from pipeline.damage.drift import DriftResult, measure_drift
 from pipeline.damage.features import FeatureSet, compute_features, parse_features
 from pipeline.damage.measure import Scores, fit_plane, measure_cracks, point_spacing, score, supported
@@ -184,16 +195,18 @@ def find_cracks(
     detection = detect(
         x, det, seed=cfg.seed, fit_points=cfg.fit_points, clusters=CLUSTERS_PER_FEATURE.get(feats.value, 2)
     )
-    raw = detection.mask
+    if cfg.threshold == "valley" and det in ANOMALY_DETECTORS:
+        detection = Detection(detection.score, valley_threshold(detection.score, detection.threshold, cfg.valley_rise))
+    sigma = robust_sigma(detection.score)
     detection = smooth(part.points, detection, cfg.smooth_cell_m, cfg.smooth_keep_raw)
     support_m = cfg.support_spacings * spacing
     mask = supported(part.points, detection.mask, support_m, cfg.min_support)
+    mask = grow(part.points, mask, detection.score, detection.threshold - cfg.grow_sigmas * sigma, cfg.grow_m)
     timings["detect"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    core = supported(part.points, mask, support_m, cfg.min_support, by=raw)  # the opening, without the rim
     link = max(cfg.link_m, cfg.link_spacings * spacing)
     cracks, ids = measure_cracks(
-        part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing, cfg.min_elongation, core=core
+        part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing, cfg.min_elongation
     )
     scores = None
     if carried is not None:
