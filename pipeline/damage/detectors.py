@@ -3,7 +3,8 @@
 Every detector gives each point a crack score and a threshold (score > threshold = crack), so that all of them
 can be smoothed over space the same way: cracks are spatially coherent, isolated dark specks are not.
 Anomaly detectors are fitted on a seeded sample of at most `fit_points` points and applied to all points
-(one-class SVM and robust covariance are quadratic or worse in the number of points).
+(one-class SVM and robust covariance are quadratic or worse in the number of points). `valley_threshold`
+reads the contamination from the scores themselves; `grow` is hysteresis held close to a crack.
 """
 
 from __future__ import annotations

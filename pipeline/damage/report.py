@@ -1,5 +1,5 @@
-"""Damage assessment end to end: cracks on an element (features → detector → smoothing → instances →
-sizes → scores) and the JSON damage report of a map (cracks per element, story drift and tilt)."""
+"""Damage assessment end to end: cracks on an element (features → detector → smoothing → clean-up and
+growth → instances → sizes → scores) and the JSON damage report of a map (cracks per element, story drift and tilt)."""
 
 from __future__ import annotations
 
@@ -163,8 +163,13 @@ def find_cracks(
 
     The cloud is first reduced to one point per `resolution_m` voxel (default: 1 mm for columns and walls,
     1 cm for slabs, as the study evaluated); a truth mask is carried along by majority. Precision and recall
-    are then counted over the points of that evaluated cloud. A cloud whose spacing is coarser than
-    `cfg.max_spacing_m` raises `TooSparseError` (unless `check_spacing` is off, for the spacing study)."""
+    are then counted over the points of that evaluated cloud. Detection: features → detector, whose
+    threshold rises to the valley before a separate mode of high scores when there is one (`cfg.threshold`)
+    → scores smoothed over space → support clean-up (drops the smoothing's rim, and the thin ends of cracks
+    with it) → growth: points within `cfg.grow_m` of a crack whose smoothed score is nearly above the
+    threshold join it. Each crack's opening is measured on all of its points, as each true crack's is.
+    A cloud whose spacing is coarser than `cfg.max_spacing_m` raises `TooSparseError` (unless `check_spacing`
+    is off, for the spacing study)."""
     n_in = len(cloud)
     if truth is not None:
         truth = np.asarray(truth)
