@@ -87,8 +87,10 @@ class RerunConfig(_Section):
 
 class LRGNetConfig(_Section):
     voxel_size_m: float = 0.1
-    inliers: int = 512  # I
-    neighbours: int = 512  # J
+    # I and J: the pooled samples of a region and its neighbours. The network is trained on 128; pooling 256 measured
+    # better than 512 on validation rooms of the training buildings (office ARI 0.825 against 0.796).
+    inliers: int = 256  # I
+    neighbours: int = 256  # J
     delta_m: float = 0.1  # δ: neighbour set = unlabelled points within this distance of the region
     max_steps: int = 200  # a floor grows by one voxel ring a step: 60 cut large floors and ceilings apart
     min_segment_points: int = 10

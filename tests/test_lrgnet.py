@@ -10,7 +10,16 @@ import pytest
 import torch
 
 from models.lrgnet import LRGNet, load_weights, num_parameters, save_weights
-from models.lrgnet_train import batch_tensors, make_samples, simulate_growth, voxel_truth
+from models.lrgnet_train import (
+    HELDOUT_SEEDS,
+    TRAIN_SEEDS,
+    WARMUP_STEPS,
+    batch_tensors,
+    lr_factor,
+    make_samples,
+    simulate_growth,
+    voxel_truth,
+)
 from pipeline.cli import main
 from pipeline.cloud_io import write_cloud
 from pipeline.config import LRGNetConfig
@@ -18,7 +27,7 @@ from pipeline.errors import InputError
 from pipeline.refine import baseline_cloud, refine_cloud, scores, weight_settings
 from pipeline.refine.baselines import Baseline
 from pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
-from pipeline.refine.grow import Grower, Growth
+from pipeline.refine.grow import Grower, Growth, seed_order
 from pipeline.types import LabelledCloud
 
 
@@ -176,6 +185,20 @@ def test_growth_covers_a_connected_object_and_stops_without_neighbours() -> None
     assert np.all(truth[inl] == 2) and np.all(truth[nb] == 2)
 
 
+def test_seeds_flat_reliable_voxels_first() -> None:
+    """Seeds by increasing curvature, voxels with few occupied neighbours (edges, stray points) after all others."""
+    vc = voxelise(small_room(), 0.1)
+    occupied = (vc.adjacency >= 0).sum(axis=1)
+    order = seed_order(vc, 6)
+    assert sorted(order.tolist()) == list(range(len(vc)))
+    reliable = occupied[order] >= 6
+    n = int(reliable.sum())
+    assert 0 < n < len(vc) and reliable[:n].all() and not reliable[n:].any()
+    assert np.all(np.diff(vc.curvature[order[:n]]) >= 0) and np.all(np.diff(vc.curvature[order[n:]]) >= 0)
+    assert vc.curvature[order[0]] < 0.01
+    assert np.array_equal(seed_order(vc, 0), np.argsort(vc.curvature, kind="stable"))
+
+
 def test_growth_stops_when_nothing_is_added_and_at_the_step_cap() -> None:
     vc = voxelise(apart_boxes(), 0.1)
     never = Grower(vc, biased_net(add=-20.0), LRGNetConfig()).grow(0)
@@ -244,6 +267,17 @@ def test_simulated_growth_labels_match_the_truth() -> None:
     xi, xn, rm, add = batch_tensors(samples, np.arange(4), np.random.default_rng(0))
     assert xi.shape == (4, 32, 13) and xn.shape == (4, 32, 13) and rm.shape == (4, 32) and add.shape == (4, 32)
     assert torch.allclose(xi[..., 9:12].norm(dim=-1), xi[..., 9:12].norm(dim=-1))  # finite
+
+
+def test_training_schedule_and_buildings() -> None:
+    """Warm-up to the peak learning rate, cosine to zero; training and held-out buildings never share a seed."""
+    total = 1000
+    f = np.array([lr_factor(k, total) for k in range(total + 1)])
+    assert f[0] == pytest.approx(1 / WARMUP_STEPS) and f[WARMUP_STEPS - 1] == pytest.approx(1.0)
+    assert np.all(np.diff(f[WARMUP_STEPS - 1 :]) <= 1e-12) and f[total] == pytest.approx(0.0, abs=1e-12)
+    assert f[(total + WARMUP_STEPS) // 2] == pytest.approx(0.5, abs=0.01)
+    for family, seeds in TRAIN_SEEDS.items():
+        assert len(seeds) > 1 and not set(seeds) & set(HELDOUT_SEEDS[family])
 
 
 # ----------------------------------------------------------------------------- baselines

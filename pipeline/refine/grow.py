@@ -3,7 +3,8 @@
 Each step pools a sample of the region (I inliers, J neighbours, with replacement when fewer) into the global
 feature, then decides for *every* inlier and neighbour (in chunks) whether to remove or add it. A region stops
 when nothing is added, no neighbours remain, it did not expand for two steps, or after `max_steps`.
-Seeds are the unlabelled voxels of least curvature. All randomness comes from one seeded generator.
+Seeds are the unlabelled voxels of least curvature (reliable ones first, see `seed_order`). All randomness
+comes from one seeded generator.
 """
 
 from __future__ import annotations
@@ -22,6 +23,13 @@ from pipeline.refine.features import VoxelCloud, region_centre, step_features
 CHUNK: Final = 8192  # candidates per head evaluation
 NOT_EXPANDING_STOP: Final = 2
 _EPS: Final = 1e-7
+
+
+def seed_order(vc: VoxelCloud, min_neighbours: int) -> np.ndarray:
+    """Voxels in the order they are tried as seeds: least curvature first, the voxels whose curvature is reliable
+    (at least `min_neighbours` occupied neighbouring voxels) before the others (edges, slivers, strays)."""
+    occupied = (vc.adjacency >= 0).sum(axis=1)
+    return np.lexsort((vc.curvature, occupied < min_neighbours))
 
 
 class Search(StrEnum):
@@ -157,10 +165,10 @@ class Grower:
 
     # --- the whole cloud --------------------------------------------------------------------------------
     def segment(self, record_object: int | None = None) -> Segmentation:
-        """Grow regions from seeds in increasing curvature until every voxel is labelled."""
+        """Grow regions from seeds in increasing curvature (`seed_order`) until every voxel is labelled."""
         m = len(self.vc)
         labels = np.zeros(m, np.int64)
-        order = np.argsort(self.vc.curvature, kind="stable")
+        order = seed_order(self.vc, self.cfg.seed_min_neighbours)
         steps_per_object: list[int] = []
         history = None
         pos = 0
