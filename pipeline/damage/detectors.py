@@ -182,12 +182,15 @@ def smooth(points: np.ndarray, detection: Detection, cell_m: float, keep_raw: bo
     return Detection(score, detection.threshold)
 
 
-def valley_threshold(score: np.ndarray, floor: float, rise: float = 2.0, bins: int = 200) -> float:
-    """The contamination read from the scores themselves: when the histogram of the scores (1st to 99.9th
+def valley_threshold(
+    score: np.ndarray, floor: float, rise: float = 2.0, min_share: float = 0.03, bins: int = 200
+) -> float:
+    """The contamination read from the scores themselves: when the histogram of the scores (1st to 999th
     per-mille, lightly smoothed) falls from its main mode to a valley and rises again to a second mode at least
-    `rise` times as dense as the valley, the deepest such valley is the threshold; otherwise `floor` (the
-    detector's own threshold). Never below `floor`. Cracks that stand apart from sound concrete form such a
-    mode; where they blend into it (wide damaged zones) there is none and the detector's threshold stays."""
+    `rise` times as dense as the valley, holding at least `min_share` of the scores beyond the valley, the
+    deepest such valley is the threshold; otherwise `floor` (the detector's own threshold). Never below `floor`.
+    Cracks that stand apart from sound concrete form such a mode; where they blend into it (wide damaged zones)
+    there is none and the detector's threshold stays; a few stray points far out are not a mode."""
     from scipy.ndimage import gaussian_filter1d
 
     s = np.asarray(score, np.float64)
@@ -200,7 +203,9 @@ def valley_threshold(score: np.ndarray, floor: float, rise: float = 2.0, bins: i
     mode = int(np.argmax(h))
     after = np.r_[np.maximum.accumulate(h[::-1])[::-1][1:], 0.0]  # the densest bin beyond each bin
     i = np.arange(1, bins - 1)
-    valley = i[(i > mode) & (h[i] <= h[i - 1]) & (h[i] <= h[i + 1]) & (after[i] >= rise * h[i])]
+    beyond = (np.cumsum(hist[::-1])[::-1] - hist + np.sum(s > hi)) / len(s)  # share of the scores above each bin
+    local_min = (h[i] <= h[i - 1]) & (h[i] <= h[i + 1])
+    valley = i[(i > mode) & local_min & (after[i] >= rise * h[i]) & (beyond[i] >= min_share)]
     if len(valley) == 0:
         return float(floor)
     return float(max(centres[valley[np.argmin(h[valley])]], floor))
