@@ -47,7 +47,7 @@ class NetConfig:
     context_points: int = 50
     context_cell_m: float = 0.3
     voxel_m: float = 0.1
-    range_m: float = 2.0
+    range_m: float = 4.0  # horizontal labelling range the network was trained with (see LabelConfig)
     features: tuple[str, ...] = POINT_FEATURES
     context_features: tuple[str, ...] = CONTEXT_FEATURES
 

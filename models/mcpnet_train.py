@@ -46,7 +46,8 @@ HELDOUT_SEEDS: Final[tuple[int, ...]] = (900, 901)
 TRAIN_SCANS: Final = 150  # scans per training mission
 HELDOUT_SCANS: Final = 150
 
-EPOCHS: Final = 14
+EPOCHS: Final = 3  # MCPNet and its no-context variant: an epoch shows every training point once
+POINTNET_EPOCHS: Final = 14  # PointNet: an epoch shows a quarter of the training scans
 BATCH_INSTANCES: Final = 16
 POINTS_PER_INSTANCE: Final = 16
 MARGIN: Final = 1.0
@@ -404,6 +405,7 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
     for p in paths.values():
         if p.exists() and not force:
             raise OutputError("weights file exists; pass --force to overwrite", p)
+    pointnet_epochs = POINTNET_EPOCHS if epochs is None else epochs
     epochs = EPOCHS if epochs is None else epochs
     start = time.perf_counter()
     base = NetConfig()
@@ -416,6 +418,8 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
         "scans_per_mission": TRAIN_SCANS,
         "training_points": len(pool),
         "epochs": epochs,
+        "pointnet_epochs": pointnet_epochs,
+        "range_m": base.range_m,
         "seed": seed,
         "staging_seconds": round(time.perf_counter() - start, 1),
     }
@@ -426,7 +430,7 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
         save_weights(paths[kind], model, cfg, {**figures, **fig})
         figures[kind] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
     cfg = NetConfig(kind="pointnet")
-    model, fig = train_pointnet(missions, cfg, epochs, seed)
+    model, fig = train_pointnet(missions, cfg, pointnet_epochs, seed)
     fig["parameters"] = num_parameters(model)
     save_weights(paths["pointnet"], model, cfg, {**figures, **fig})
     figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}

@@ -6,6 +6,9 @@ embeddings above β). Per connected group of links:
 - no older instance in the group: a new instance;
 - one: the new voxels join it;
 - several: the group takes the smallest id and the others are merged into it everywhere in the map.
+With `merge_beta` (labellers with embeddings), neighbouring instances also merge when their mean
+embeddings agree: a voxel's embedding is noisy and single links stop short of an object's far parts, the
+mean over an instance's voxels is not, so fragments of one object join once each has a few voxels.
 Merges are recorded on the frame as `InstanceMerge`s, so the sinks can show them.
 """
 
@@ -25,9 +28,12 @@ Affinity = Callable[[VoxelMap, np.ndarray, np.ndarray], np.ndarray]
 
 
 class InstanceClusterer:
-    def __init__(self, affinity: Affinity) -> None:
+    def __init__(self, affinity: Affinity, reach_voxels: int = 1, merge_beta: float | None = None) -> None:
         self.affinity = affinity
+        self.reach = reach_voxels
+        self.merge_beta = merge_beta
         self.next_id = 1  # 0 means "no object"
+        self.sums = np.zeros((0, 0), np.float64)  # per instance id: sum of its voxels' embeddings
 
     def add(self, vmap: VoxelMap, new_rows: np.ndarray, seq: int) -> list[InstanceMerge]:
         """Give the new rows instance ids, merging instances they bridge; returns the merges."""
@@ -35,7 +41,7 @@ class InstanceClusterer:
         k = len(new_rows)
         if not k:
             return []
-        nb = vmap.neighbour_rows(new_rows, 1)
+        nb = vmap.neighbour_rows(new_rows, self.reach)
         a = np.repeat(np.arange(k), nb.shape[1])
         b = nb.ravel().astype(np.int64)
         keep = b >= 0
@@ -49,6 +55,7 @@ class InstanceClusterer:
         candidate = np.where(b_is_new, b_local > a, old_ids > 0)
         a, b, b_local = a[candidate], b[candidate], b_local[candidate]
         b_is_new, old_ids = b_is_new[candidate], old_ids[candidate]
+        contact_a, contact_b = new_rows[a], b  # every neighbouring pair, linked or not
         linked = np.asarray(self.affinity(vmap, new_rows[a], b), bool)
         a, b_local, b_is_new, old_ids = a[linked], b_local[linked], b_is_new[linked], old_ids[linked]
 
@@ -70,16 +77,55 @@ class InstanceClusterer:
 
         into = group_id[comp[k:]]
         merged = into != touched
-        merges: list[InstanceMerge] = []
-        if merged.any():
-            lut = np.arange(self.next_id, dtype=np.uint32)
-            lut[touched[merged]] = into[merged]
-            ids = vmap.instance_ids
-            ids[:] = lut[ids]
-            for target in np.unique(into[merged]):
-                gone = touched[merged & (into == target)]
-                merges.append(InstanceMerge(int(target), tuple(int(g) for g in gone), seq))
+        merges = self._merge(vmap, touched[merged], into[merged], seq)
+        if self.merge_beta is not None and vmap.embeddings.shape[1]:
+            self._add_embeddings(vmap, new_rows)
+            merges += self._merge_similar(vmap, contact_a, contact_b, seq)
         return merges
+
+    def _merge(self, vmap: VoxelMap, gone: np.ndarray, into: np.ndarray, seq: int) -> list[InstanceMerge]:
+        """Instances `gone` become `into` everywhere in the map (and in the embedding sums)."""
+        if not len(gone):
+            return []
+        lut = np.arange(self.next_id, dtype=np.uint32)
+        lut[gone] = into
+        ids = vmap.instance_ids
+        ids[:] = lut[ids]
+        if len(self.sums):
+            np.add.at(self.sums, into, self.sums[gone])
+            self.sums[gone] = 0.0
+        return [
+            InstanceMerge(int(target), tuple(int(g) for g in gone[into == target]), seq) for target in np.unique(into)
+        ]
+
+    def _add_embeddings(self, vmap: VoxelMap, new_rows: np.ndarray) -> None:
+        if len(self.sums) < self.next_id:
+            grown = np.zeros((max(self.next_id, 2 * len(self.sums), 1024), vmap.embeddings.shape[1]))
+            if len(self.sums):
+                grown[: len(self.sums)] = self.sums
+            self.sums = grown
+        np.add.at(self.sums, vmap.instance_ids[new_rows].astype(np.int64), vmap.embeddings[new_rows])
+
+    def _merge_similar(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray, seq: int) -> list[InstanceMerge]:
+        """Merge neighbouring instances whose mean embeddings' cosine similarity exceeds `merge_beta`."""
+        ia = vmap.instance_ids[rows_a].astype(np.int64)
+        ib = vmap.instance_ids[rows_b].astype(np.int64)
+        pairs = np.unique(np.sort(np.c_[ia, ib][(ia != ib) & (ia > 0) & (ib > 0)], axis=1), axis=0)
+        if not len(pairs):
+            return []
+        mean = self.sums[pairs] / np.maximum(np.linalg.norm(self.sums[pairs], axis=2, keepdims=True), 1e-12)
+        pairs = pairs[np.einsum("ij,ij->i", mean[:, 0], mean[:, 1]) > self.merge_beta]
+        if not len(pairs):
+            return []
+        nodes, inv = np.unique(pairs, return_inverse=True)
+        inv = inv.reshape(-1, 2)
+        graph = coo_matrix((np.ones(len(pairs), np.int8), (inv[:, 0], inv[:, 1])), shape=(len(nodes), len(nodes)))
+        _, comp = connected_components(graph, directed=False)
+        target = np.full(comp.max() + 1, np.iinfo(np.int64).max, np.int64)
+        np.minimum.at(target, comp, nodes)
+        into = target[comp]
+        keep = into != nodes
+        return self._merge(vmap, nodes[keep], into[keep], seq)
 
 
 def cluster_frame(frame: Frame, vmap: VoxelMap, clusterer: InstanceClusterer) -> Frame:

@@ -173,7 +173,8 @@ def _run(
 
     vmap = VoxelMap(cfg.map.voxel_size_m, labeller.embedding_dim)
     registrar = Registrar(cfg.registration, environment)
-    clusterer = InstanceClusterer(labeller.affinity)
+    merge_beta = cfg.cluster.merge_beta if labeller.embedding_dim and cfg.cluster.merge_beta <= 1 else None
+    clusterer = InstanceClusterer(labeller.affinity, cfg.cluster.link_reach_voxels, merge_beta)
     all_scans = (s for part in (skipped, [first], it) for s in part)
 
     frames: Iterator[Frame] = _tap(_timed_source(all_scans), sinks, Stage.RAW)

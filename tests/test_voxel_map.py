@@ -131,3 +131,30 @@ def test_to_cloud_copies() -> None:
     cloud = vm.to_cloud()
     vm.class_ids[0] = 4
     assert cloud.class_ids[0] == UNLABELLED and len(cloud) == 1 and cloud.colors[0, 0] == 9
+
+
+def test_neighbouring_instances_merge_when_their_mean_embeddings_agree() -> None:
+    vm = VoxelMap(1.0, embedding_dim=2)
+    never = lambda m, a, b: np.zeros(len(a), bool)  # noqa: E731 - no single voxel pair links
+    cl = InstanceClusterer(never, merge_beta=0.9)
+    east, north = np.array([1.0, 0.0]), np.array([0.0, 1.0])
+    rows, _ = vm.insert(np.array([[0.5, 0.5, 0.5]]), None, 0)
+    vm.embeddings[rows] = east
+    cl.add(vm, rows, 0)
+    # A neighbour with a different mean embedding stays apart ...
+    rows, _ = vm.insert(np.array([[1.5, 0.5, 0.5]]), None, 1)
+    vm.embeddings[rows] = north
+    assert cl.add(vm, rows, 1) == [] and len(set(vm.instance_ids)) == 2
+    # ... one that agrees joins, and so does a far voxel once a bridge of agreeing voxels reaches it.
+    rows, _ = vm.insert(np.array([[0.5, 1.5, 0.5], [3.5, 0.5, 0.5]]), None, 2)
+    vm.embeddings[rows] = east
+    merges = cl.add(vm, rows, 2)
+    assert [(m.into, m.merged) for m in merges] == [(1, (3,))]
+    assert vm.instance_ids.tolist() == [1, 2, 1, 4]
+    rows, _ = vm.insert(np.array([[1.5, 1.5, 0.5], [2.5, 1.5, 0.5]]), None, 3)
+    vm.embeddings[rows] = east
+    merges = cl.add(vm, rows, 3)
+    assert vm.instance_ids.tolist() == [1, 2, 1, 1, 1, 1] and [m.into for m in merges] == [1]
+    # The embedding sums follow the merges: instance 1 holds five east voxels, the north one is apart.
+    np.testing.assert_allclose(cl.sums[1], 5 * east)
+    np.testing.assert_allclose(cl.sums[2], north)
