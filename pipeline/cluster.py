@@ -9,6 +9,8 @@ embeddings above β). Per connected group of links:
 With `merge_beta` (labellers with embeddings), neighbouring instances also merge when their mean
 embeddings agree: a voxel's embedding is noisy and single links stop short of an object's far parts, the
 mean over an instance's voxels is not, so fragments of one object join once each has a few voxels.
+With `absorb`, a small fragment that has stopped growing (an object still being scanned keeps growing)
+joins the neighbouring instance it agrees with most, at a lower similarity.
 Merges are recorded on the frame as `InstanceMerge`s, so the sinks can show them.
 """
 
@@ -28,10 +30,19 @@ Affinity = Callable[[VoxelMap, np.ndarray, np.ndarray], np.ndarray]
 
 
 class InstanceClusterer:
-    def __init__(self, affinity: Affinity, reach_voxels: int = 1, merge_beta: float | None = None) -> None:
+    def __init__(
+        self,
+        affinity: Affinity,
+        reach_voxels: int = 1,
+        merge_beta: float | None = None,
+        absorb: tuple[int, int, float] | None = None,
+    ) -> None:
         self.affinity = affinity
         self.reach = reach_voxels
         self.merge_beta = merge_beta
+        self.absorb = absorb  # (fewest voxels, scans without growth, similarity): see `_absorb_stale`
+        self.size = np.zeros(0, np.int64)  # voxels per instance id
+        self.last_grown = np.zeros(0, np.int64)  # scan in which each instance last gained a voxel
         self.next_id = 1  # 0 means "no object"
         self.sums = np.zeros((0, 0), np.float64)  # per instance id: sum of its voxels' embeddings
 
@@ -81,7 +92,49 @@ class InstanceClusterer:
         if self.merge_beta is not None and vmap.embeddings.shape[1]:
             self._add_embeddings(vmap, new_rows)
             merges += self._merge_similar(vmap, contact_a, contact_b, seq)
+        if self.absorb is not None and len(self.sums):
+            self._grow_counts(vmap, new_rows, seq)
+            merges += self._absorb_stale(vmap, seq)
         return merges
+
+    def _reserve(self, seq: int) -> None:
+        """Room in the per-instance counts for every id handed out so far."""
+        if len(self.size) < self.next_id:
+            n = max(self.next_id, 2 * len(self.size), 1024)
+            self.size = np.r_[self.size, np.zeros(n - len(self.size), np.int64)]
+            self.last_grown = np.r_[self.last_grown, np.full(n - len(self.last_grown), seq, np.int64)]
+
+    def _grow_counts(self, vmap: VoxelMap, new_rows: np.ndarray, seq: int) -> None:
+        self._reserve(seq)
+        ids = vmap.instance_ids[new_rows].astype(np.int64)
+        self.size += np.bincount(ids, minlength=len(self.size))[: len(self.size)]
+        self.last_grown[ids] = seq
+
+    def _absorb_stale(self, vmap: VoxelMap, seq: int) -> list[InstanceMerge]:
+        """A fragment that stayed under `absorb[0]` voxels for `absorb[1]` scans (an object still being
+        scanned keeps growing) joins the neighbouring instance whose mean embedding it agrees with most,
+        if that similarity reaches `absorb[2]`. Each fragment gets this one chance."""
+        assert self.absorb is not None
+        min_voxels, wait, beta = self.absorb
+        ids = np.arange(len(self.size))
+        stale = ids[(self.size > 0) & (self.size < min_voxels) & (self.last_grown == seq - wait)]
+        if not len(stale):
+            return []
+        rows = np.flatnonzero(np.isin(vmap.instance_ids, stale))
+        nb = vmap.neighbour_rows(rows, self.reach)
+        own = np.repeat(vmap.instance_ids[rows].astype(np.int64), nb.shape[1])
+        other = np.where(nb.ravel() >= 0, vmap.instance_ids[np.maximum(nb.ravel(), 0)], 0).astype(np.int64)
+        ok = (other > 0) & (other != own) & (self.size[other] >= min_voxels)
+        pairs = np.unique(np.c_[own[ok], other[ok]], axis=0)
+        if not len(pairs):
+            return []
+        mean = self.sums[pairs] / np.maximum(np.linalg.norm(self.sums[pairs], axis=2, keepdims=True), 1e-12)
+        sim = np.einsum("ij,ij->i", mean[:, 0], mean[:, 1])
+        good = sim >= beta
+        pairs, sim = pairs[good], sim[good]
+        order = np.lexsort((-sim, pairs[:, 0]))
+        first = order[np.r_[True, pairs[order][1:, 0] != pairs[order][:-1, 0]]] if len(order) else order
+        return self._merge(vmap, pairs[first, 0], pairs[first, 1], seq)
 
     def _merge(self, vmap: VoxelMap, gone: np.ndarray, into: np.ndarray, seq: int) -> list[InstanceMerge]:
         """Instances `gone` become `into` everywhere in the map (and in the embedding sums)."""
@@ -94,6 +147,11 @@ class InstanceClusterer:
         if len(self.sums):
             np.add.at(self.sums, into, self.sums[gone])
             self.sums[gone] = 0.0
+        if self.absorb is not None:
+            self._reserve(seq)
+            np.add.at(self.size, into, self.size[gone])
+            self.size[gone] = 0
+            np.maximum.at(self.last_grown, into, self.last_grown[gone])
         return [
             InstanceMerge(int(target), tuple(int(g) for g in gone[into == target]), seq) for target in np.unique(into)
         ]

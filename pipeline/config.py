@@ -74,6 +74,11 @@ class ClusterConfig(_Section):
     # Labellers with embeddings: neighbouring instances merge when their mean embeddings agree this well
     # (cosine similarity); > 1 turns it off.
     merge_beta: float = 0.9
+    # Fragments under this many voxels that stopped growing for `absorb_after_scans` scans join the
+    # neighbouring instance whose mean embedding agrees best, at `absorb_beta` or more (1 voxel = off).
+    absorb_voxels: int = 30
+    absorb_after_scans: int = 10
+    absorb_beta: float = 0.7
     link_reach_voxels: int = 1  # a new voxel links to voxels up to this many voxels away (1 = the 26 around it)
     normal_angle_deg: float = 20.0  # region-growing baseline: neighbouring normals within this angle
     color_distance: float = 0.12  # region-growing baseline: RGB distance in [0, 1] units

@@ -174,7 +174,9 @@ def _run(
     vmap = VoxelMap(cfg.map.voxel_size_m, labeller.embedding_dim)
     registrar = Registrar(cfg.registration, environment)
     merge_beta = cfg.cluster.merge_beta if labeller.embedding_dim and cfg.cluster.merge_beta <= 1 else None
-    clusterer = InstanceClusterer(labeller.affinity, cfg.cluster.link_reach_voxels, merge_beta)
+    c = cfg.cluster
+    absorb = (c.absorb_voxels, c.absorb_after_scans, c.absorb_beta) if merge_beta and c.absorb_voxels > 1 else None
+    clusterer = InstanceClusterer(labeller.affinity, c.link_reach_voxels, merge_beta, absorb)
     all_scans = (s for part in (skipped, [first], it) for s in part)
 
     frames: Iterator[Frame] = _tap(_timed_source(all_scans), sinks, Stage.RAW)

@@ -158,3 +158,33 @@ def test_neighbouring_instances_merge_when_their_mean_embeddings_agree() -> None
     # The embedding sums follow the merges: instance 1 holds five east voxels, the north one is apart.
     np.testing.assert_allclose(cl.sums[1], 5 * east)
     np.testing.assert_allclose(cl.sums[2], north)
+
+
+def test_a_fragment_that_stops_growing_joins_the_neighbour_it_agrees_with() -> None:
+    vm = VoxelMap(1.0, embedding_dim=2)
+    never = lambda m, a, b: np.zeros(len(a), bool)  # noqa: E731
+    # Fragments under 3 voxels, 2 scans without growth, similarity 0.7; instance merging itself kept off.
+    cl = InstanceClusterer(never, merge_beta=2.0, absorb=(3, 2, 0.7))
+    wall = np.array([[x + 0.5, 0.5, 0.5] for x in range(4)])
+    rows, _ = vm.insert(wall, None, 0)
+    vm.embeddings[rows] = [1.0, 0.0]
+    cl.add(vm, rows, 0)
+    vm.instance_ids[rows] = 1  # one object of 4 voxels (the links above were all refused)
+    cl.sums[:] = 0.0
+    cl.sums[1] = [4.0, 0.0]
+    cl.size[:] = 0
+    cl.size[1] = 4
+    close, _ = vm.insert(np.array([[0.5, 1.5, 0.5]]), None, 1)  # agrees with the wall (cos 0.8)
+    vm.embeddings[close] = [0.8, 0.6]
+    far, _ = vm.insert(np.array([[3.5, 1.5, 0.5]]), None, 1)  # does not (cos 0)
+    vm.embeddings[far] = [0.0, 1.0]
+    cl.add(vm, np.r_[close, far], 1)
+    assert vm.instance_ids[close][0] not in (0, 1) and vm.instance_ids[far][0] not in (0, 1)
+    assert cl.add(vm, np.zeros(0, np.int64), 2) == []  # not stale yet (grew at scan 1)
+    elsewhere, _ = vm.insert(np.array([[10.5, 10.5, 10.5]]), None, 3)
+    vm.embeddings[elsewhere] = [1.0, 0.0]
+    fragment = int(vm.instance_ids[close][0])
+    merges = cl.add(vm, elsewhere, 3)  # two scans without growth: the close fragment joins the wall
+    assert [(m.into, m.merged) for m in merges] == [(1, (fragment,))]
+    assert vm.instance_ids[close][0] == 1 and vm.instance_ids[far][0] not in (0, 1)
+    assert cl.size[1] == 5
