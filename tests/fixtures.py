@@ -302,3 +302,11 @@ def write_bag(
                 t = T0_NS + k * PERIOD_NS
                 w.write(conn, t, ts.serialize_ros1(_rosbags_cloud(ts, cols, t, frame_id), msgtype))
     return path
+
+
+def interruptible() -> None:
+    """`preexec_fn` for a child the test will Ctrl-C: a shell's background job inherits SIGINT ignored, and a
+    Python child started so never raises KeyboardInterrupt; give it the default disposition back."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures import write_ros2_mcap
+from fixtures import interruptible, write_ros2_mcap
 from rrd_read import read_rrd, rrd_verify
 
 from pipeline.classes import NUM_CLASSES, SemanticClass
@@ -265,7 +265,9 @@ def test_ctrl_c_on_the_command_line(tmp_path: Path) -> None:
     out = tmp_path / "ctrlc.rrd"
     cmd = [sys.executable, "-m", "pipeline", "run", str(log), "--save", str(out), "--labeller", "region-growing"]
     env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, preexec_fn=interruptible
+    )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and not out.exists():  # the sink creates it when the run begins
         time.sleep(0.1)

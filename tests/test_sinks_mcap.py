@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures import interruptible
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rrd_read import read_rrd
@@ -172,7 +173,7 @@ def test_ctrl_c_leaves_a_finished_file(lidar_dir: Path, tmp_path: Path) -> None:
     env = dict(os.environ, PYTHONPATH=f"{REPO}{os.pathsep}{REPO / 'tests'}")
     child = subprocess.Popen(
         [sys.executable, "-c", _CHILD, str(lidar_dir / VELODYNE), str(out)],
-        cwd=REPO, env=env, stdout=subprocess.PIPE, text=True,
+        cwd=REPO, env=env, stdout=subprocess.PIPE, text=True, preexec_fn=interruptible,
     )  # fmt: skip
     assert child.stdout is not None
     for _ in range(6):

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures import interruptible
 from rerun.chunk import McapReader, RrdReader
 from rrd_read import read_rrd, rrd_verify
 from sinks_data import VELODYNE, frames, map_of
@@ -215,7 +216,7 @@ def test_connect_streams_to_a_viewer_server(velodyne: Path, tmp_path: Path) -> N
     env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
     server = subprocess.Popen(
         [str(rerun), "--bind", "127.0.0.1", "--port", str(port), "--save", str(out)],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=interruptible,
     )  # fmt: skip
     try:
         deadline = time.monotonic() + 20
@@ -279,8 +280,9 @@ def test_ctrl_c_leaves_a_readable_recording(velodyne: Path, tmp_path: Path) -> N
     out = tmp_path / "interrupted.rrd"
     env = dict(os.environ, CI="true", PYTHONPATH=f"{REPO}{os.pathsep}{REPO / 'tests'}")
     child = subprocess.Popen(
-        [sys.executable, "-c", _CHILD, str(velodyne), str(out)], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True
-    )
+        [sys.executable, "-c", _CHILD, str(velodyne), str(out)],
+        cwd=REPO, env=env, stdout=subprocess.PIPE, text=True, preexec_fn=interruptible,
+    )  # fmt: skip
     assert child.stdout is not None
     for _ in range(6):  # let it log a few scans, then interrupt it mid-run
         assert child.stdout.readline(), "the child stopped before it was interrupted"
