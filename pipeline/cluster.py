@@ -128,8 +128,7 @@ class InstanceClusterer:
         pairs = np.unique(np.c_[own[ok], other[ok]], axis=0)
         if not len(pairs):
             return []
-        mean = self.sums[pairs] / np.maximum(np.linalg.norm(self.sums[pairs], axis=2, keepdims=True), 1e-12)
-        sim = np.einsum("ij,ij->i", mean[:, 0], mean[:, 1])
+        sim = self._mean_similarity(pairs)
         good = sim >= beta
         pairs, sim = pairs[good], sim[good]
         order = np.lexsort((-sim, pairs[:, 0]))
@@ -164,6 +163,12 @@ class InstanceClusterer:
             self.sums = grown
         np.add.at(self.sums, vmap.instance_ids[new_rows].astype(np.int64), vmap.embeddings[new_rows])
 
+    def _mean_similarity(self, pairs: np.ndarray) -> np.ndarray:
+        """Cosine similarity of the mean embeddings of each pair of instance ids (P, 2)."""
+        sums = self.sums[pairs]
+        mean = sums / np.maximum(np.linalg.norm(sums, axis=2, keepdims=True), 1e-12)
+        return np.einsum("ij,ij->i", mean[:, 0], mean[:, 1])
+
     def _merge_similar(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray, seq: int) -> list[InstanceMerge]:
         """Merge neighbouring instances whose mean embeddings' cosine similarity exceeds `merge_beta`."""
         ia = vmap.instance_ids[rows_a].astype(np.int64)
@@ -171,8 +176,7 @@ class InstanceClusterer:
         pairs = np.unique(np.sort(np.c_[ia, ib][(ia != ib) & (ia > 0) & (ib > 0)], axis=1), axis=0)
         if not len(pairs):
             return []
-        mean = self.sums[pairs] / np.maximum(np.linalg.norm(self.sums[pairs], axis=2, keepdims=True), 1e-12)
-        pairs = pairs[np.einsum("ij,ij->i", mean[:, 0], mean[:, 1]) > self.merge_beta]
+        pairs = pairs[self._mean_similarity(pairs) > self.merge_beta]
         if not len(pairs):
             return []
         nodes, inv = np.unique(pairs, return_inverse=True)
