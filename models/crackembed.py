@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from models.weights_file import read_weights
 from pipeline.config import CrackConfig
 from pipeline.errors import InputError
 from pipeline.types import LabelledCloud
@@ -73,13 +74,8 @@ def save_weights(model: CrackEmbed, path: Path, meta: dict) -> None:
 
 def load_model(path: str | Path | None = None) -> CrackEmbed:
     p = Path(path) if path is not None else WEIGHTS
-    if not p.is_file():
-        raise InputError("CrackEmbed weights not found (run `aftershock train crackembed`)", p)
-    try:
-        blob = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a damaged file
-        raise InputError(f"not a readable weights file ({exc.__class__.__name__})", p) from None
-    if not isinstance(blob, dict) or blob.get("magic") != _MAGIC:
+    blob = read_weights(p, "CrackEmbed", "rebuild it with `aftershock train crackembed --force`")
+    if blob.get("magic") != _MAGIC:
         raise InputError("not a CrackEmbed weights file", p)
     model = CrackEmbed()
     model.load_state_dict(blob["state"])

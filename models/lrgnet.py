@@ -17,6 +17,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from models.weights_file import read_weights
 from pipeline.errors import InputError
 
 BRANCH_WIDTHS: Final = (64, 64, 64, 128, 512)
@@ -115,13 +116,8 @@ def load_weights(path: str | Path, expected: dict[str, Any]) -> tuple[LRGNet, di
     """Load weights and check their header against the settings in use; a mismatch is an InputError that names
     the file and how to rebuild it."""
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"LRGNet weights not found; {REBUILD_HINT}", p)
-    try:
-        blob = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a damaged or foreign file
-        raise InputError(f"not readable LRGNet weights ({type(exc).__name__}); {REBUILD_HINT}", p) from None
-    header = blob.get("header") if isinstance(blob, dict) else None
+    blob = read_weights(p, "LRGNet", REBUILD_HINT)
+    header = blob.get("header")
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise InputError(f"not an LRGNet weights file; {REBUILD_HINT}", p)
     if header.get("version") != FORMAT_VERSION:

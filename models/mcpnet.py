@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from models.weights_file import read_weights
 from pipeline.classes import NUM_CLASSES
 from pipeline.errors import InputError
 
@@ -143,13 +144,8 @@ def save_weights(path: Path, model: nn.Module, cfg: NetConfig, figures: dict[str
 def load_header(path: str | Path) -> dict[str, Any]:
     """The raw contents of a weights file, checked for format and version; InputError naming the file if not."""
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"weights file not found; {REBUILD_HINT}", p)
-    try:
-        blob = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a damaged or foreign file
-        raise InputError(f"not a readable weights file ({type(exc).__name__}); {REBUILD_HINT}", p) from None
-    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+    blob = read_weights(p, "MCPNet", REBUILD_HINT)
+    if blob.get("format") != FORMAT:
         raise InputError(f"not an aftershock MCPNet weights file; {REBUILD_HINT}", p)
     if blob.get("version") != FORMAT_VERSION:
         raise InputError(f"weights format version {blob.get('version')} != {FORMAT_VERSION}; {REBUILD_HINT}", p)

@@ -1,0 +1,25 @@
+"""Reading a shipped weights file: missing or unreadable files are user errors that name the file and the fix."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from pipeline.errors import InputError
+
+
+def read_weights(path: str | Path, what: str, hint: str) -> dict[str, Any]:
+    """The dict saved in `path`; InputError naming the file and `hint` (how to rebuild it) if it is missing,
+    unreadable or not a dict. `what` names the weights in messages, e.g. "MCPNet"."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{what} weights file not found; {hint}", p)
+    try:
+        blob = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for a damaged or foreign file
+        raise InputError(f"not a readable {what} weights file ({type(exc).__name__}); {hint}", p) from None
+    if not isinstance(blob, dict):
+        raise InputError(f"not an aftershock {what} weights file; {hint}", p)
+    return blob
