@@ -16,9 +16,9 @@ from typing import Final
 import numpy as np
 import torch
 
-from models.crackembed import WEIGHTS, CrackEmbed, point_inputs, save_weights
-from pipeline.cloud_io import check_output
-from pipeline.damage.measure import components
+from aftershock.models.crackembed import WEIGHTS, CrackEmbed, point_inputs, save_weights
+from aftershock.pipeline.cloud_io import check_output
+from aftershock.pipeline.damage.measure import components
 
 EPOCHS: Final = 30
 STEPS_PER_EPOCH: Final = 20
@@ -35,7 +35,7 @@ HELD_OUT_SEEDS: Final = 100  # element seeds from here on are never trained on: 
 def training_element(seed: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Points, colours and surface ids (0 = intact concrete, stains and pits included; k = the k-th crack) of
     a simulated cracked element (seeds below `HELD_OUT_SEEDS`), cropped to a random window, and its spacing."""
-    from sources.simulator.cracks import cracked_element
+    from aftershock.sources.simulator.cracks import cracked_element
 
     kind = KINDS[seed % len(KINDS)]
     spacing = float(rng.uniform(0.002, 0.008))

@@ -17,8 +17,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from models.weights_file import read_weights
-from pipeline.errors import InputError
+from aftershock.models.weights_file import read_weights
+from aftershock.pipeline.errors import InputError
 
 BRANCH_WIDTHS: Final = (64, 64, 64, 128, 512)
 HEAD_WIDTHS: Final = (256, 128, 2)

@@ -25,14 +25,14 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from models.lrgnet import LRGNet, num_parameters, save_weights
-from pipeline.cloud_io import check_output
-from pipeline.config import LRGNetConfig
-from pipeline.refine.features import VoxelCloud, canonical_normals, region_centre, voxelise
-from pipeline.types import LabelledCloud
+from aftershock.models.lrgnet import LRGNet, num_parameters, save_weights
+from aftershock.pipeline.cloud_io import check_output
+from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.refine.features import VoxelCloud, canonical_normals, region_centre, voxelise
+from aftershock.pipeline.types import LabelledCloud
 
 if TYPE_CHECKING:
-    from sources.simulator.scene import Room
+    from aftershock.sources.simulator.scene import Room
 
 log = logging.getLogger(__name__)
 
@@ -155,7 +155,7 @@ def simulator_version() -> str:
     """A short hash of the simulator's source: cached buildings of another simulator are not reused."""
     import hashlib
 
-    import sources.simulator as sim
+    import aftershock.sources.simulator as sim
 
     digest = hashlib.sha256()
     for f in sorted(Path(sim.__file__).parent.glob("*.py")):
@@ -191,7 +191,7 @@ def building_rooms(family: str, seed: int) -> list[LabelledCloud]:
 
 
 def _cut_rooms(family: str, seed: int) -> list[LabelledCloud]:
-    from sources.simulator import build_scene
+    from aftershock.sources.simulator import build_scene
 
     scene = build_scene(family, seed)
     cloud = scene.sample_static_cloud(RAW_SPACING_M, seed)
@@ -405,7 +405,7 @@ def family_samples(family: str, cfg: LRGNetConfig, seed: int) -> tuple[Samples, 
 
 def targets(out: Path | None) -> dict[str, tuple[Path, tuple[str, ...]]]:
     """The three weights files: one per family beside `out`, and both families in `out` itself."""
-    from pipeline.refine import DEFAULT_WEIGHTS
+    from aftershock.pipeline.refine import DEFAULT_WEIGHTS
 
     main = Path(out) if out is not None else DEFAULT_WEIGHTS
     result = {f: (main.with_name(f"{main.stem}_{f}{main.suffix}"), (f,)) for f in FAMILIES}
@@ -415,7 +415,7 @@ def targets(out: Path | None) -> dict[str, tuple[Path, tuple[str, ...]]]:
 
 def train_target(name: str, path: Path, families: tuple[str, ...], seed: int, epochs: int) -> dict[str, Any]:
     """Train and write one weights file; the same seed gives the same file whether run alone or within `train`."""
-    from pipeline.refine import weight_settings
+    from aftershock.pipeline.refine import weight_settings
 
     cfg = LRGNetConfig()
     t0 = time.perf_counter()

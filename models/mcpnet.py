@@ -20,9 +20,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from models.weights_file import read_weights
-from pipeline.classes import NUM_CLASSES
-from pipeline.errors import InputError
+from aftershock.models.weights_file import read_weights
+from aftershock.pipeline.classes import NUM_CLASSES
+from aftershock.pipeline.errors import InputError
 
 WEIGHTS_DIR: Final = Path(__file__).resolve().parent / "weights"
 FORMAT: Final = "aftershock-mcpnet"
@@ -154,7 +154,7 @@ def load_header(path: str | Path) -> dict[str, Any]:
 
 def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, NetConfig, dict[str, Any]]:
     """A network ready for inference from a weights file; refuses files of another kind or feature layout."""
-    from models.pointnet import PointNet  # local: pointnet imports this module
+    from aftershock.models.pointnet import PointNet  # local: pointnet imports this module
 
     blob = load_header(path)
     try:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from models.mcpnet import (
+from aftershock.models.mcpnet import (
     CONTEXT_DIM,
     POINT_DIM,
     WEIGHTS_DIR,
@@ -31,12 +31,12 @@ from models.mcpnet import (
     point_features,
     save_weights,
 )
-from models.pointnet import PointNet
-from pipeline.classes import UNLABELLED
-from pipeline.errors import OutputError
-from pipeline.voxel_map import VoxelMap
-from sources.simulator import Mission as SimMission
-from sources.simulator import build_scene, get_profile
+from aftershock.models.pointnet import PointNet
+from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.voxel_map import VoxelMap
+from aftershock.sources.simulator import Mission as SimMission
+from aftershock.sources.simulator import build_scene, get_profile
 
 FAMILIES: Final[tuple[str, ...]] = ("office", "disaster")
 SENSOR: Final = "vlp16"

@@ -8,7 +8,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from models.mcpnet import NetConfig, _mlp
+from aftershock.models.mcpnet import NetConfig, _mlp
 
 
 class PointNet(nn.Module):

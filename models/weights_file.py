@@ -7,7 +7,7 @@ from typing import Any
 
 import torch
 
-from pipeline.errors import InputError
+from aftershock.pipeline.errors import InputError
 
 
 def read_weights(path: str | Path, what: str, hint: str) -> dict[str, Any]:

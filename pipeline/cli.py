@@ -10,7 +10,7 @@ from typing import Final
 
 import typer
 
-from pipeline.errors import AftershockError, DamagedLogWarning
+from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
 
 COMMAND_MODULES: Final[tuple[str, ...]] = (
     "info",
@@ -49,7 +49,7 @@ def _root(
 
 def _register_commands() -> None:
     for name in COMMAND_MODULES:
-        module_name = f"pipeline.commands.{name}"
+        module_name = f"aftershock.pipeline.commands.{name}"
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:

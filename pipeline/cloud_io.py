@@ -9,8 +9,8 @@ from typing import Final
 import numpy as np
 from plyfile import PlyData, PlyElement, PlyParseError
 
-from pipeline.errors import InputError, OutputError
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.errors import InputError, OutputError
+from aftershock.pipeline.types import LabelledCloud
 
 _INTENSITY_NAMES: Final = ("intensity", "scalar_intensity", "scalar_Intensity", "reflectance")
 

@@ -23,8 +23,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from pipeline.types import Frame, InstanceMerge
-from pipeline.voxel_map import VoxelMap
+from aftershock.pipeline.types import Frame, InstanceMerge
+from aftershock.pipeline.voxel_map import VoxelMap
 
 Affinity = Callable[[VoxelMap, np.ndarray, np.ndarray], np.ndarray]
 

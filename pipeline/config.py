@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from pipeline.errors import InputError
+from aftershock.pipeline.errors import InputError
 
 
 class Environment(StrEnum):

@@ -14,10 +14,10 @@ from typing import Final, Protocol, runtime_checkable
 
 import numpy as np
 
-from pipeline.config import Config, Environment
-from pipeline.errors import InputError
-from pipeline.types import Frame, Labels
-from pipeline.voxel_map import VoxelMap
+from aftershock.pipeline.config import Config, Environment
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.types import Frame, Labels
+from aftershock.pipeline.voxel_map import VoxelMap
 
 # name -> module under pipeline.labellers
 LABELLERS: Final[dict[str, str]] = {
@@ -53,7 +53,7 @@ def make_labeller(name: str, cfg: Config) -> Labeller:
     module_name = LABELLERS.get(name)
     if module_name is None:
         raise InputError(f"unknown labeller {name!r}; choose one of: {', '.join(LABELLERS)}")
-    full = f"pipeline.labellers.{module_name}"
+    full = f"aftershock.pipeline.labellers.{module_name}"
     try:
         module = importlib.import_module(full)
     except ModuleNotFoundError as exc:

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from sklearn.metrics import adjusted_mutual_info_score, adjusted_rand_score, normalized_mutual_info_score
 
-from pipeline.classes import CLASS_NAMES, NUM_CLASSES, UNLABELLED
+from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES, UNLABELLED
 
 IOU_THRESHOLD: Final = 0.5
 

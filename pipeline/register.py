@@ -24,8 +24,8 @@ from kiss_icp.config import KISSConfig
 from kiss_icp.kiss_icp import KissICP
 from scipy.spatial.transform import Rotation
 
-from pipeline.config import Environment, RegisterConfig
-from pipeline.types import Frame, Scan
+from aftershock.pipeline.config import Environment, RegisterConfig
+from aftershock.pipeline.types import Frame, Scan
 
 log = logging.getLogger(__name__)
 

@@ -23,16 +23,16 @@ from time import perf_counter
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from pipeline.classes import CLASS_NAMES, NUM_CLASSES
-from pipeline.cluster import InstanceClusterer, cluster_stage
-from pipeline.config import Config, Environment
-from pipeline.errors import InputError
-from pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
-from pipeline.register import MIN_POINTS, Registrar, guess_environment, register_stage
-from pipeline.trajectory import TrajectoryError, trajectory_error
-from pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary, Scan
-from pipeline.voxel_map import VoxelMap
-from sinks.base import Sink, Stage
+from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES
+from aftershock.pipeline.cluster import InstanceClusterer, cluster_stage
+from aftershock.pipeline.config import Config, Environment
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
+from aftershock.pipeline.register import MIN_POINTS, Registrar, guess_environment, register_stage
+from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
+from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary, Scan
+from aftershock.pipeline.voxel_map import VoxelMap
+from aftershock.sinks.base import Sink, Stage
 
 log = logging.getLogger(__name__)
 

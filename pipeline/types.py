@@ -14,7 +14,7 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.classes import UNLABELLED
+from aftershock.pipeline.classes import UNLABELLED
 
 IDENTITY: Final[np.ndarray] = np.eye(4)
 

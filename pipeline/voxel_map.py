@@ -13,8 +13,8 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.classes import UNLABELLED
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.types import LabelledCloud
 
 _BITS: Final = 21  # per axis: ±2^20 voxels, about ±105 km at 0.1 m
 _OFFSET: Final = 1 << (_BITS - 1)

@@ -8,6 +8,6 @@ every stage, the growing map, the on-demand layers and the end of the run.
 They are imported from their modules (rerun and mcap load only when asked for).
 """
 
-from sinks.base import Sink, Stage
+from aftershock.sinks.base import Sink, Stage
 
 __all__ = ["Sink", "Stage"]

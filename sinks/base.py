@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
 
 
 class Stage(StrEnum):

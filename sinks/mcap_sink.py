@@ -18,12 +18,12 @@ from typing import BinaryIO, Final
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from pipeline.classes import UNLABELLED, class_colors
-from pipeline.cloud_io import check_output
-from pipeline.errors import OutputError
-from pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
-from sinks.base import Sink, Stage
-from sources.pointcloud2 import (
+from aftershock.pipeline.classes import UNLABELLED, class_colors
+from aftershock.pipeline.cloud_io import check_output
+from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
+from aftershock.sinks.base import Sink, Stage
+from aftershock.sources.pointcloud2 import (
     POINTCLOUD2_MSGDEF,
     POSE_STAMPED_MSGDEF,
     encode_pointcloud2,

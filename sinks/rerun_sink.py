@@ -35,14 +35,14 @@ from urllib.parse import urlsplit
 import numpy as np
 import rerun as rr
 
-from pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNLABELLED, UNLABELLED_COLOR, instance_colors
-from pipeline.cloud_io import check_output
-from pipeline.config import RerunConfig
-from pipeline.errors import OutputError
-from pipeline.geometry import voxel_downsample
-from pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Scan, Story
-from sinks import rerun_blueprint as L
-from sinks.base import Sink, Stage
+from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNLABELLED, UNLABELLED_COLOR, instance_colors
+from aftershock.pipeline.cloud_io import check_output
+from aftershock.pipeline.config import RerunConfig
+from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.geometry import voxel_downsample
+from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Scan, Story
+from aftershock.sinks import rerun_blueprint as L
+from aftershock.sinks.base import Sink, Stage
 
 TRAJECTORY_PIECE: Final = 500  # poses per trajectory strip; older strips are never re-logged
 DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)

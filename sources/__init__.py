@@ -16,8 +16,8 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import InputError
-from pipeline.types import Scan
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.types import Scan
 
 SIM_SCHEME = "sim://"
 
@@ -43,7 +43,7 @@ def kind_of(path_or_uri: str | Path) -> SourceKind:
     text = str(path_or_uri)
     if text.startswith(SIM_SCHEME):
         return SourceKind.SIM
-    from sources.files import SUFFIXES, is_glob
+    from aftershock.sources.files import SUFFIXES, is_glob
 
     if is_glob(text) and not Path(text).exists():
         return SourceKind.FILES
@@ -51,11 +51,11 @@ def kind_of(path_or_uri: str | Path) -> SourceKind:
     if not path.exists():
         raise InputError("no such file or directory", path)
     if path.is_dir():
-        from sources.bag import is_ros2_bag
+        from aftershock.sources.bag import is_ros2_bag
 
         return SourceKind.BAG if is_ros2_bag(path) else SourceKind.FILES
-    from sources.bag import is_ros1_bag
-    from sources.mcap_source import is_mcap
+    from aftershock.sources.bag import is_ros1_bag
+    from aftershock.sources.mcap_source import is_mcap
 
     try:
         if is_mcap(path):
@@ -80,18 +80,18 @@ def open(path_or_uri: str | Path, **options: Any) -> Iterator[Scan]:
     kind = kind_of(path_or_uri)
     options = {k: v for k, v in options.items() if v is not None}
     if kind is SourceKind.SIM:
-        from sources.simulated import open_simulated
+        from aftershock.sources.simulated import open_simulated
 
         return open_simulated(str(path_or_uri), **options)
     if kind is SourceKind.MCAP:
-        from sources.mcap_source import open_mcap
+        from aftershock.sources.mcap_source import open_mcap
 
         return open_mcap(Path(path_or_uri), **options)
     if kind is SourceKind.BAG:
-        from sources.bag import open_bag
+        from aftershock.sources.bag import open_bag
 
         return open_bag(Path(path_or_uri), **options)
-    from sources.files import open_files
+    from aftershock.sources.files import open_files
 
     return open_files(path_or_uri, **options)
 
@@ -100,19 +100,19 @@ def describe(path_or_uri: str | Path, topic: str | None = None) -> SourceDescrip
     """Kind, chosen point-cloud topic and log start of an input, without reading its scans."""
     kind = kind_of(path_or_uri)
     if kind is SourceKind.MCAP:
-        from sources.common import choose_topic
-        from sources.mcap_source import read_catalog
+        from aftershock.sources.common import choose_topic
+        from aftershock.sources.mcap_source import read_catalog
 
         cat = read_catalog(Path(path_or_uri))
         return SourceDescription(kind, choose_topic(cat.types, topic, path_or_uri), cat.start_ns)
     if kind is SourceKind.BAG:
-        from sources.bag import read_catalog as read_bag_catalog
-        from sources.common import choose_topic
+        from aftershock.sources.bag import read_catalog as read_bag_catalog
+        from aftershock.sources.common import choose_topic
 
         bag = read_bag_catalog(Path(path_or_uri))
         return SourceDescription(kind, choose_topic(bag.types, topic, path_or_uri), bag.start_ns)
     if kind is SourceKind.FILES:
-        from sources.files import FILES_TOPIC, list_files
+        from aftershock.sources.files import FILES_TOPIC, list_files
 
         list_files(path_or_uri)
         return SourceDescription(kind, FILES_TOPIC, 0)

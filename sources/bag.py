@@ -8,9 +8,9 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Final
 
-from pipeline.errors import InputError
-from pipeline.types import Scan
-from sources.common import (
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.types import Scan
+from aftershock.sources.common import (
     CloudMessage,
     Damage,
     DecodedCloud,
@@ -22,7 +22,7 @@ from sources.common import (
     choose_topic,
     window_ns,
 )
-from sources.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
+from aftershock.sources.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 
 ROS1_MAGIC: Final[bytes] = b"#ROSBAG V2.0"
 

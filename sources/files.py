@@ -15,9 +15,9 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.types import Scan
-from sources.common import CloudMessage, DecodedCloud, Event, assemble, check_window, window_ns
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.types import Scan
+from aftershock.sources.common import CloudMessage, DecodedCloud, Event, assemble, check_window, window_ns
 
 SUFFIXES: Final[tuple[str, ...]] = (".pcd", ".ply", ".bin")
 FILE_PERIOD_NS: Final[int] = 100_000_000

@@ -11,11 +11,19 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import DamagedLogWarning, InputError
-from pipeline.progress import bar
-from sources import SourceKind, kind_of
-from sources.common import POINTCLOUD_TYPES, POSE_TYPES, CloudMessage, Damage, DecodedCloud, Event, choose_topic
-from sources.pointcloud2 import (
+from aftershock.pipeline.errors import DamagedLogWarning, InputError
+from aftershock.pipeline.progress import bar
+from aftershock.sources import SourceKind, kind_of
+from aftershock.sources.common import (
+    POINTCLOUD_TYPES,
+    POSE_TYPES,
+    CloudMessage,
+    Damage,
+    DecodedCloud,
+    Event,
+    choose_topic,
+)
+from aftershock.sources.pointcloud2 import (
     CLASS_FIELD,
     INSTANCE_FIELD,
     TIME_FIELDS,
@@ -174,7 +182,7 @@ def inspect(path_or_glob: str | Path, progress: bool = False, topic: str | None 
     kind = kind_of(path_or_glob)
     name = Path(str(path_or_glob)).name
     if kind is SourceKind.MCAP:
-        from sources.mcap_source import events, read_catalog
+        from aftershock.sources.mcap_source import events, read_catalog
 
         cat = read_catalog(Path(path_or_glob), progress=progress)
         types = cat.types
@@ -184,8 +192,8 @@ def inspect(path_or_glob: str | Path, progress: bool = False, topic: str | None 
         evs: Iterator[Event] = events(cat, clouds)
         start, end, duration = cat.start_ns, cat.end_ns, cat.duration_s
     elif kind is SourceKind.BAG:
-        from sources.bag import events as bag_events
-        from sources.bag import read_catalog as read_bag
+        from aftershock.sources.bag import events as bag_events
+        from aftershock.sources.bag import read_catalog as read_bag
 
         bag = read_bag(Path(path_or_glob))
         types = bag.types
@@ -195,8 +203,8 @@ def inspect(path_or_glob: str | Path, progress: bool = False, topic: str | None 
         evs = bag_events(Path(path_or_glob), clouds)
         start, end, duration = bag.start_ns, bag.end_ns, bag.duration_s
     elif kind is SourceKind.FILES:
-        from sources.files import FILE_PERIOD_NS, FILES_TOPIC, list_files
-        from sources.files import events as file_events
+        from aftershock.sources.files import FILE_PERIOD_NS, FILES_TOPIC, list_files
+        from aftershock.sources.files import events as file_events
 
         files = list_files(path_or_glob)
         suffixes = sorted({f.suffix.lower().lstrip(".") for f in files})

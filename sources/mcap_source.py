@@ -19,10 +19,10 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from pipeline.errors import InputError
-from pipeline.progress import bar
-from pipeline.types import Scan
-from sources.common import (
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.progress import bar
+from aftershock.pipeline.types import Scan
+from aftershock.sources.common import (
     CloudMessage,
     Damage,
     DecodedCloud,
@@ -34,8 +34,8 @@ from sources.common import (
     choose_topic,
     window_ns,
 )
-from sources.foxglove import decode_foxglove_pointcloud
-from sources.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
+from aftershock.sources.foxglove import decode_foxglove_pointcloud
+from aftershock.sources.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 
 MCAP_MAGIC: Final[bytes] = b"\x89MCAP0\r\n"
 _RECORD_LIMIT: Final[int] = 1 << 30  # a record larger than 1 GiB in a LiDAR log means a corrupt length

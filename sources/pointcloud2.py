@@ -15,7 +15,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from pipeline.types import Scan
+from aftershock.pipeline.types import Scan
 
 
 class PointFieldType(IntEnum):

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 from urllib.parse import parse_qs, urlsplit
 
-from pipeline.errors import InputError
-from pipeline.types import Scan
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.types import Scan
 
 if TYPE_CHECKING:
-    from sources.simulator.mission import Mission
+    from aftershock.sources.simulator.mission import Mission
 
 SCHEME: Final = "sim"
 DEFAULT_FAMILY: Final = "disaster"
@@ -92,8 +92,8 @@ def parse_sim_uri(uri: str) -> SimSpec:
 
 
 def check_spec(spec: SimSpec, where: str) -> None:
-    from sources.simulator.families import family_spec
-    from sources.simulator.profiles import get_profile
+    from aftershock.sources.simulator.families import family_spec
+    from aftershock.sources.simulator.profiles import get_profile
 
     family_spec(spec.family)
     get_profile(spec.sensor)
@@ -109,8 +109,8 @@ def check_spec(spec: SimSpec, where: str) -> None:
 
 def make_mission(spec: SimSpec) -> Mission:
     """The scene and mission of a spec."""
-    from sources.simulator import Mission, build_scene, get_profile
-    from sources.simulator.trajectory import WALK_SPEED_MPS
+    from aftershock.sources.simulator import Mission, build_scene, get_profile
+    from aftershock.sources.simulator.trajectory import WALK_SPEED_MPS
 
     scene = build_scene(spec.family, spec.seed)
     if not 0 <= spec.story < scene.num_stories:
@@ -129,7 +129,7 @@ def make_mission(spec: SimSpec) -> Mission:
 
 def open_simulated(uri: str, **options: Any) -> Iterator[Scan]:
     """Scans of the mission a `sim://` URI describes; options max_scans, every, start_s, end_s, progress."""
-    from sources.simulator.mission import DEFAULT_SCANS, POINTS_TOPIC
+    from aftershock.sources.simulator.mission import DEFAULT_SCANS, POINTS_TOPIC
 
     options = {k: v for k, v in options.items() if v is not None}
     unknown = set(options) - _OPTIONS
@@ -163,7 +163,7 @@ def open_simulated(uri: str, **options: Any) -> Iterator[Scan]:
 
 
 def _stream(mission: Mission, keep: range, progress: bool) -> Iterator[Scan]:
-    from pipeline.progress import track
+    from aftershock.pipeline.progress import track
 
     for k in track(keep, total=len(keep), desc="simulating", show=None if progress else False):
         yield mission.scan(k)

@@ -20,13 +20,13 @@ from typing import Final
 import numpy as np
 import pytest
 
-from pipeline.cloud_io import read_cloud
-from pipeline.config import CrackConfig, DriftConfig
-from pipeline.damage.detectors import Detector
-from pipeline.damage.features import FeatureSet
-from pipeline.damage.report import CrackResult, find_cracks
-from pipeline.types import LabelledCloud
-from sources.simulator.damage import CrackTruth
+from aftershock.pipeline.cloud_io import read_cloud
+from aftershock.pipeline.config import CrackConfig, DriftConfig
+from aftershock.pipeline.damage.detectors import Detector
+from aftershock.pipeline.damage.features import FeatureSet
+from aftershock.pipeline.damage.report import CrackResult, find_cracks
+from aftershock.pipeline.types import LabelledCloud
+from aftershock.sources.simulator.damage import CrackTruth
 
 pytestmark = pytest.mark.slow
 
@@ -172,7 +172,7 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
     fig.savefig(DOCS / "cracks_share.png", dpi=120)
     plt.close(fig)
 
-    from sources.simulator.cracks import cracked_element
+    from aftershock.sources.simulator.cracks import cracked_element
 
     print("\nF1 against crack width (unseen simulated elements, seeds 100+):")
     fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -193,7 +193,7 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
 
 def test_unseen_simulated_elements() -> None:
     """Elements never trained on (simulator seeds 100+; CrackEmbed trains on seeds below 100)."""
-    from sources.simulator.cracks import cracked_element
+    from aftershock.sources.simulator.cracks import cracked_element
 
     print("\nUnseen simulated elements (F1, mean of seeds 100-104; width errors per true crack, median):")
     for feature in (FeatureSet.SHADE_CRACKEMBED, FeatureSet.SHADE, FeatureSet.CRACKEMBED):
@@ -232,8 +232,8 @@ def test_setting_selection(
     computed once per element (they do not depend on these settings)."""
     import hashlib
 
-    import pipeline.damage.report as report
-    from sources.simulator.cracks import cracked_element
+    import aftershock.pipeline.damage.report as report
+    from aftershock.sources.simulator.cracks import cracked_element
 
     cache: dict[tuple[str, str], np.ndarray] = {}
     compute = report.compute_features
@@ -302,7 +302,7 @@ def test_per_crack_sizes(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) 
     elements and on unseen simulated ones (seeds 100-104). Real truth: each connected group of the truth
     mask, linked and measured as the reported cracks are. Simulated truth: the simulator's own crack
     lengths and mean openings (crossing cracks merge into one reported crack: their length error is large)."""
-    from sources.simulator.cracks import cracked_element
+    from aftershock.sources.simulator.cracks import cracked_element
 
     cfg = CrackConfig()
     print("\nPer crack (widths are openings; errors |measured - true|, median over true cracks found):")
@@ -342,8 +342,8 @@ def test_per_crack_sizes(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) 
 def test_drift_on_simulated_buildings() -> None:
     """Drift and tilt of every level of damaged simulated buildings against the truth, at static-scan
     spacings; target ≤ 2 mm and ≤ 0.05°."""
-    from pipeline.damage.drift import measure_drift
-    from sources.simulator.building import build_scene
+    from aftershock.pipeline.damage.drift import measure_drift
+    from aftershock.sources.simulator.building import build_scene
 
     worst_tilt, worst_drift = 0.0, 0.0
     for spacing, seeds in ((0.05, (1, 2, 3, 4, 5)), (0.03, (1, 2, 3))):

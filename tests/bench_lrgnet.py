@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 import torch
 
-from models.lrgnet_train import FAMILIES, HELDOUT_SEEDS, building_rooms
-from pipeline.config import LRGNetConfig
-from pipeline.refine import WEIGHTS_DIR, baseline_cloud, load_network, refine_cloud, scores
-from pipeline.refine.baselines import available
-from pipeline.refine.features import voxelise
-from pipeline.types import LabelledCloud
+from aftershock.models.lrgnet_train import FAMILIES, HELDOUT_SEEDS, building_rooms
+from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.refine import WEIGHTS_DIR, baseline_cloud, load_network, refine_cloud, scores
+from aftershock.pipeline.refine.baselines import available
+from aftershock.pipeline.refine.features import voxelise
+from aftershock.pipeline.types import LabelledCloud
 
 pytestmark = pytest.mark.slow
 

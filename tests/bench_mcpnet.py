@@ -22,7 +22,7 @@ from typing import Any, Final
 import numpy as np
 import pytest
 
-from models.mcpnet_train import FAMILIES, HELDOUT_SCANS, HELDOUT_SEEDS, SENSOR
+from aftershock.models.mcpnet_train import FAMILIES, HELDOUT_SCANS, HELDOUT_SEEDS, SENSOR
 
 REPO: Final = Path(__file__).resolve().parents[1]
 PLOT: Final = REPO / "docs" / "mcpnet_context_points.png"
@@ -42,10 +42,10 @@ BENCH_SEEDS: Final = tuple(int(s) for s in os.environ.get("MCPNET_BENCH_SEEDS", 
 WORKER: Final = r"""
 import json, pickle, resource, sys, tempfile
 from pathlib import Path
-from pipeline.commands.evaluate import evaluate_map
-from pipeline.config import load_config
-from pipeline.stream import run_stream
-from pipeline.types import RunInfo
+from aftershock.pipeline.commands.evaluate import evaluate_map
+from aftershock.pipeline.config import load_config
+from aftershock.pipeline.stream import run_stream
+from aftershock.pipeline.types import RunInfo
 scans_path, labeller, overrides, rerun = sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), sys.argv[4] == "1"
 cfg = load_config(None, [f"label.labeller={labeller}", *overrides])
 def scans():  # one scan in memory at a time, as from a log
@@ -57,7 +57,7 @@ def scans():  # one scan in memory at a time, as from a log
                 return
 sinks = []
 if rerun:
-    from sinks.rerun_sink import RerunSink
+    from aftershock.sinks.rerun_sink import RerunSink
     sinks.append(RerunSink(Path(tempfile.mkdtemp()) / "bench.rrd", False, None, cfg.rerun))
 res = run_stream(scans(), cfg, sinks, RunInfo(source=scans_path, source_kind="sim"), lambda _t: None)
 out = evaluate_map(res.vmap)
@@ -92,7 +92,7 @@ def _overall_iou(rep: dict[str, Any]) -> float:
 
 @pytest.fixture(scope="module")
 def missions(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    import sources
+    from aftershock import sources
 
     root = tmp_path_factory.mktemp("heldout")
     paths = []
@@ -109,7 +109,7 @@ def missions(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
 
 
 def _size(method: str) -> tuple[float, int]:
-    from models.mcpnet import default_weights, load_model, num_parameters
+    from aftershock.models.mcpnet import default_weights, load_model, num_parameters
 
     if method not in WEIGHTS:
         return 0.0, 0

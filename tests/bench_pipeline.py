@@ -20,12 +20,12 @@ from typing import Final
 
 import pytest
 
-from pipeline.commands.evaluate import evaluate_map
-from pipeline.config import load_config
-from pipeline.errors import InputError
-from pipeline.label import make_labeller
-from pipeline.stream import STAGES, run_stream
-from pipeline.types import RunInfo
+from aftershock.pipeline.commands.evaluate import evaluate_map
+from aftershock.pipeline.config import load_config
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.label import make_labeller
+from aftershock.pipeline.stream import STAGES, run_stream
+from aftershock.pipeline.types import RunInfo
 
 SCANS: Final = 300
 MEMORY_SCANS: Final = 3000
@@ -39,7 +39,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("bench") / "vlp16_300.mcap"
-    cmd = [sys.executable, "-m", "pipeline", "simulate", "--out", str(out), "--scans", str(SCANS), "--quiet"]
+    cmd = [sys.executable, "-m", "aftershock.pipeline", "simulate", "--out", str(out), "--scans", str(SCANS), "--quiet"]
     cmd += [f"--{k}={v}" for k, v in MISSION.items()]
     subprocess.run(cmd, check=True, env=dict(os.environ, CI="true", RERUN_ANALYTICS="0"))
     return out
@@ -56,8 +56,8 @@ def _labellers() -> list[str]:
 
 
 def test_speed_of_the_stream_with_a_recording(mission: Path, tmp_path: Path) -> None:
-    import sources
-    from sinks.rerun_sink import RerunSink
+    from aftershock import sources
+    from aftershock.sinks.rerun_sink import RerunSink
 
     rows = []
     for name in _labellers():
@@ -93,11 +93,11 @@ def test_speed_of_the_stream_with_a_recording(mission: Path, tmp_path: Path) -> 
 _MEMORY_RUN: Final = textwrap.dedent(
     """
     import json, resource, sys, time
-    import sources
-    from pipeline.config import load_config
-    from pipeline.stream import run_stream
-    from pipeline.types import RunInfo
-    from sinks.rerun_sink import RerunSink
+    from aftershock import sources
+    from aftershock.pipeline.config import load_config
+    from aftershock.pipeline.stream import run_stream
+    from aftershock.pipeline.types import RunInfo
+    from aftershock.sinks.rerun_sink import RerunSink
 
     uri, rrd, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
     cfg = load_config(None, ['label.labeller="region-growing"'])

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.classes import CLASS_NAMES, NUM_CLASSES
-from sources.simulator import PROFILES, Mission, build_scene, get_profile
+from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES
+from aftershock.sources.simulator import PROFILES, Mission, build_scene, get_profile
 
 pytestmark = pytest.mark.slow
 SCANS = 60

@@ -15,12 +15,12 @@ import psutil
 import pytest
 from sinks_data import VELODYNE, make_frame, map_of, read_scans
 
-from pipeline.config import RerunConfig
-from pipeline.types import Frame, RunInfo, RunSummary, Scan
-from sinks.base import Sink, Stage
-from sinks.files import FileExportSink
-from sinks.mcap_sink import McapSink
-from sinks.rerun_sink import RerunSink
+from aftershock.pipeline.config import RerunConfig
+from aftershock.pipeline.types import Frame, RunInfo, RunSummary, Scan
+from aftershock.sinks.base import Sink, Stage
+from aftershock.sinks.files import FileExportSink
+from aftershock.sinks.mcap_sink import McapSink
+from aftershock.sinks.rerun_sink import RerunSink
 
 pytestmark = pytest.mark.slow
 

@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
-import sources
+from aftershock import sources
 
 pytestmark = pytest.mark.slow
 
@@ -39,7 +39,7 @@ def peak_rss_mb(*args: str) -> float:
     """Peak resident memory of a child process (MB), from its own getrusage at exit."""
     code = (
         "import resource, sys\n"
-        "from pipeline.cli import main\n"
+        "from aftershock.pipeline.cli import main\n"
         "rc = main(sys.argv[1:])\n"
         "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, file=sys.stderr)\n"
         "sys.exit(rc)\n"

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.cli import main
-from pipeline.cloud_io import read_cloud, write_cloud
-from pipeline.config import CrackConfig
-from pipeline.damage.detectors import Detector, detect, grow, valley_threshold
-from pipeline.damage.features import FeatureSet, compute_features
-from pipeline.damage.measure import crack_shape, measure_cracks, min_area_rectangle, supported
-from pipeline.damage.report import find_cracks
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.cli import main
+from aftershock.pipeline.cloud_io import read_cloud, write_cloud
+from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.damage.detectors import Detector, detect, grow, valley_threshold
+from aftershock.pipeline.damage.features import FeatureSet, compute_features
+from aftershock.pipeline.damage.measure import crack_shape, measure_cracks, min_area_rectangle, supported
+from aftershock.pipeline.damage.report import find_cracks
+from aftershock.pipeline.types import LabelledCloud
 
 
 @pytest.mark.parametrize("angle_deg", [0.0, 17.0, 45.0, 90.0, 133.0])
@@ -138,7 +138,7 @@ def test_every_feature_set(features: FeatureSet) -> None:
 
 
 def test_crackembed_is_independent_of_batch_mates() -> None:
-    from models.crackembed import NEIGHBOURS, load_model
+    from aftershock.models.crackembed import NEIGHBOURS, load_model
 
     model = load_model()
     rng = np.random.default_rng(0)
@@ -302,9 +302,9 @@ def test_pcd_input_without_colour_needs_a_geometric_feature(tmp_path: Path) -> N
 
 def test_assess_damage_on_a_dense_simulated_column() -> None:
     """A labelled dense element: assessed as one structural instance; cracks reported with their sizes."""
-    from pipeline.config import Config
-    from pipeline.damage import assess_damage
-    from sources.simulator.cracks import cracked_element
+    from aftershock.pipeline.config import Config
+    from aftershock.pipeline.damage import assess_damage
+    from aftershock.sources.simulator.cracks import cracked_element
 
     cloud, _, _ = cracked_element("column", 100, 0.004)
     report = assess_damage(cloud, Config())
@@ -318,7 +318,7 @@ def test_assess_damage_on_a_dense_simulated_column() -> None:
 def test_extract_elements_by_size_and_box() -> None:
     """An unlabelled scene (floor, wall, a 0.4 x 0.4 x 2.6 m column): region growing on normals and colour
     cuts it into elements; picking by the column's size keeps only the column's faces."""
-    from pipeline.damage.components import COLUMN_DIMS_M, extract_elements
+    from aftershock.pipeline.damage.components import COLUMN_DIMS_M, extract_elements
 
     rng = np.random.default_rng(0)
     floor = np.c_[rng.uniform(-2, 2, (40000, 2)), np.zeros(40000)]

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli import main
-from pipeline.cloud_io import write_cloud
-from pipeline.config import DriftConfig
-from pipeline.damage.drift import measure_drift, ransac_plane, slab_bands, tilt_angles
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.cli import main
+from aftershock.pipeline.cloud_io import write_cloud
+from aftershock.pipeline.config import DriftConfig
+from aftershock.pipeline.damage.drift import measure_drift, ransac_plane, slab_bands, tilt_angles
+from aftershock.pipeline.types import LabelledCloud
 
 
 def _slab(rng: np.random.Generator, z: float, tilt_x: float, tilt_y: float, shift: tuple[float, float]) -> np.ndarray:
@@ -111,7 +111,7 @@ def test_slab_bands_ignore_walls() -> None:
 
 @pytest.fixture(scope="module")
 def building() -> tuple[object, LabelledCloud]:
-    from sources.simulator.building import build_scene
+    from aftershock.sources.simulator.building import build_scene
 
     scene = build_scene("disaster", 1)
     return scene, scene.sample_static_cloud(0.1, seed=0)
@@ -135,7 +135,7 @@ def test_simulated_building_drift_and_tilt(building: tuple[object, LabelledCloud
 
 def test_small_simulated_building_static_scan_drift_and_tilt() -> None:
     """A small damaged building at a static scan's 5 cm spacing: drift within 2 mm (measured ≤ 0.8 mm)."""
-    from sources.simulator.building import build_scene
+    from aftershock.sources.simulator.building import build_scene
 
     scene = build_scene("disaster", 2)
     _assert_matches_truth(scene, scene.sample_static_cloud(0.05, seed=0))
@@ -160,8 +160,8 @@ def test_drift_command_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
 def test_assess_damage_on_a_sparse_building(building: tuple[object, LabelledCloud]) -> None:
     """The damage report of a whole map: stories with drift and tilt; its 10 cm spacing is too sparse for
     cracks, which the report says instead of guessing."""
-    from pipeline.config import Config
-    from pipeline.damage import assess_damage
+    from aftershock.pipeline.config import Config
+    from aftershock.pipeline.damage import assess_damage
 
     scene, cloud = building
     report = assess_damage(cloud, Config())

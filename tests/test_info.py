@@ -32,7 +32,7 @@ def main(capsys: pytest.CaptureFixture, *args: str | Path) -> subprocess.Complet
     """The same entry point in this process (the import of every command is paid once)."""
     import warnings
 
-    from pipeline.cli import main as entry
+    from aftershock.pipeline.cli import main as entry
 
     capsys.readouterr()
     with warnings.catch_warnings():
@@ -124,7 +124,7 @@ def test_cut_off_log_reports_what_precedes_and_warns(tmp_path: Path) -> None:
 
 
 def test_progress_bar_only_on_a_terminal() -> None:
-    from pipeline import progress
+    from aftershock.pipeline import progress
 
     assert not progress.enabled(quiet=True)
     assert not progress.enabled()  # pytest's captured stderr is not a terminal

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from models.lrgnet import LRGNet, load_weights, num_parameters, save_weights
-from models.lrgnet_train import (
+from aftershock.models.lrgnet import LRGNet, load_weights, num_parameters, save_weights
+from aftershock.models.lrgnet_train import (
     HELDOUT_SEEDS,
     TRAIN_SEEDS,
     WARMUP_STEPS,
@@ -20,15 +20,15 @@ from models.lrgnet_train import (
     simulate_growth,
     voxel_truth,
 )
-from pipeline.cli import main
-from pipeline.cloud_io import write_cloud
-from pipeline.config import LRGNetConfig
-from pipeline.errors import InputError
-from pipeline.refine import baseline_cloud, refine_cloud, scores, weight_settings
-from pipeline.refine.baselines import Baseline
-from pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
-from pipeline.refine.grow import Grower, Growth, seed_order
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.cli import main
+from aftershock.pipeline.cloud_io import write_cloud
+from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.refine import baseline_cloud, refine_cloud, scores, weight_settings
+from aftershock.pipeline.refine.baselines import Baseline
+from aftershock.pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
+from aftershock.pipeline.refine.grow import Grower, Growth, seed_order
+from aftershock.pipeline.types import LabelledCloud
 
 
 # ----------------------------------------------------------------------------- synthetic scenes

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-import sources
-from models.mcpnet import (
+from aftershock import sources
+from aftershock.models.mcpnet import (
     MCPNet,
     NetConfig,
     context_draws,
@@ -21,14 +21,14 @@ from models.mcpnet import (
     num_parameters,
     save_weights,
 )
-from models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
-from pipeline.classes import NUM_CLASSES, UNLABELLED
-from pipeline.config import Config
-from pipeline.errors import InputError
-from pipeline.labellers.mcpnet import MCPNetLabeller
-from pipeline.stream import run_stream
-from pipeline.types import LabelledCloud, RunInfo
-from pipeline.voxel_map import VoxelMap
+from aftershock.models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
+from aftershock.pipeline.classes import NUM_CLASSES, UNLABELLED
+from aftershock.pipeline.config import Config
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller
+from aftershock.pipeline.stream import run_stream
+from aftershock.pipeline.types import LabelledCloud, RunInfo
+from aftershock.pipeline.voxel_map import VoxelMap
 
 SIM = "sim://office?seed=950&sensor=vlp16&scans=25"
 MAX_WEIGHTS_BYTES = 5 * 1024 * 1024
@@ -145,7 +145,7 @@ def test_bad_weights_through_the_cli(tmp_path: Path) -> None:
             [
                 sys.executable,
                 "-m",
-                "pipeline",
+                "aftershock.pipeline",
                 "eval",
                 sim,
                 "--labeller",

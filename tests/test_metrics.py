@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pipeline.classes import UNLABELLED
-from pipeline.metrics import cluster_scores, confusion_matrix, instance_scores, semantic_scores
-from pipeline.trajectory import trajectory_error, umeyama
+from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.metrics import cluster_scores, confusion_matrix, instance_scores, semantic_scores
+from aftershock.pipeline.trajectory import trajectory_error, umeyama
 
 
 def test_semantic_scores_by_hand() -> None:

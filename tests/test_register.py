@@ -10,9 +10,9 @@ import pytest
 from kiss_icp.preprocess import Preprocessor
 from scipy.spatial.transform import Rotation
 
-import sources
-from pipeline.config import Environment, RegisterConfig
-from pipeline.register import (
+from aftershock import sources
+from aftershock.pipeline.config import Environment, RegisterConfig
+from aftershock.pipeline.register import (
     Registrar,
     deskew,
     guess_environment,
@@ -22,8 +22,8 @@ from pipeline.register import (
     se3_log,
     transform,
 )
-from pipeline.trajectory import trajectory_error
-from pipeline.types import Frame, Scan
+from aftershock.pipeline.trajectory import trajectory_error
+from aftershock.pipeline.types import Frame, Scan
 
 
 def _pose(rotvec: list[float], t: list[float]) -> np.ndarray:

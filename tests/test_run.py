@@ -17,13 +17,13 @@ import pytest
 from fixtures import interruptible, write_ros2_mcap
 from rrd_read import read_rrd, rrd_verify
 
-from pipeline.classes import NUM_CLASSES, SemanticClass
-from pipeline.cli import main
-from pipeline.config import load_config
-from pipeline.stream import run_stream
-from pipeline.types import RunInfo, Scan
-from sinks import rerun_blueprint as L
-from sinks.rerun_sink import RerunSink
+from aftershock.pipeline.classes import NUM_CLASSES, SemanticClass
+from aftershock.pipeline.cli import main
+from aftershock.pipeline.config import load_config
+from aftershock.pipeline.stream import run_stream
+from aftershock.pipeline.types import RunInfo, Scan
+from aftershock.sinks import rerun_blueprint as L
+from aftershock.sinks.rerun_sink import RerunSink
 
 REAL_LOGS = ("velodyne_vlp16_indoor.mcap", "ouster_os1_128_outdoor.mcap", "ouster_os1_64_ros1.mcap", "room_scan1.pcd")
 EVAL_KEYS = (
@@ -224,7 +224,7 @@ def test_unknown_labeller_and_bad_override(lidar_dir: Path, capsys) -> None:
 
 
 def test_a_scan_registration_cannot_align_is_marked_and_the_run_goes_on(lidar_dir: Path) -> None:
-    import sources
+    from aftershock import sources
 
     scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
     scans.insert(2, scans[1].select(np.arange(30)))  # a scan of 30 points in the middle of the log
@@ -246,7 +246,7 @@ def _interrupted(scans: list[Scan], after: int) -> Iterator[Scan]:
 
 
 def test_interrupt_leaves_a_valid_recording_of_what_was_processed(lidar_dir: Path, tmp_path: Path) -> None:
-    import sources
+    from aftershock import sources
 
     scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
     out = tmp_path / "stopped.rrd"
@@ -263,7 +263,17 @@ def test_interrupt_leaves_a_valid_recording_of_what_was_processed(lidar_dir: Pat
 def test_ctrl_c_on_the_command_line(tmp_path: Path) -> None:
     log = write_truth_log(tmp_path / "long.mcap", scans=300, points=3000)
     out = tmp_path / "ctrlc.rrd"
-    cmd = [sys.executable, "-m", "pipeline", "run", str(log), "--save", str(out), "--labeller", "region-growing"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "aftershock.pipeline",
+        "run",
+        str(log),
+        "--save",
+        str(out),
+        "--labeller",
+        "region-growing",
+    ]
     env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, preexec_fn=interruptible

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-import sources
-from pipeline.classes import NUM_CLASSES, SemanticClass
-from pipeline.errors import InputError
-from sources.simulated import open_simulated, parse_sim_uri
-from sources.simulator import (
+from aftershock import sources
+from aftershock.pipeline.classes import NUM_CLASSES, SemanticClass
+from aftershock.pipeline.errors import InputError
+from aftershock.sources.simulated import open_simulated, parse_sim_uri
+from aftershock.sources.simulator import (
     FAMILIES,
     PROFILES,
     Mission,
@@ -26,8 +26,8 @@ from sources.simulator import (
     cracked_element,
     get_profile,
 )
-from sources.simulator.recording import write_mission
-from sources.simulator.trajectory import (
+from aftershock.sources.simulator.recording import write_mission
+from aftershock.sources.simulator.trajectory import (
     CLEARANCE_M,
     PROBE_HEIGHTS_M,
     TURN_RATE_RAD_S,
@@ -314,7 +314,7 @@ def test_cracked_element(kind):
     depth = cloud.points @ normal - cracks[0].center @ normal
     assert np.median(depth[face & mask]) < np.median(depth[face & ~mask])
     # every crack point lies (in the plane of its face) inside the opening of a crack on that face
-    from sources.simulator.damage import distance_to_polylines
+    from aftershock.sources.simulator.damage import distance_to_polylines
 
     faces = sorted({tuple(c.normal) for c in cracks})
     levels = [next(c.center @ np.asarray(n) for c in cracks if tuple(c.normal) == n) for n in faces]
@@ -351,7 +351,7 @@ def test_simulate_command(tmp_path):
     summary = json.loads(proc.stdout)
     assert summary["scans"] == 3 and summary["points_per_scan"] > 10_000
     assert summary["class_histogram"]["wall"] > 0
-    from pipeline.cloud_io import read_cloud
+    from aftershock.pipeline.cloud_io import read_cloud
 
     cloud = read_cloud(ply)
     assert cloud.class_ids is not None and cloud.instance_ids.min() >= 1

@@ -10,12 +10,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 from sinks_data import VELODYNE, frames, map_of
 
-from pipeline.classes import CLASS_NAMES, class_colors
-from pipeline.cloud_io import read_cloud
-from pipeline.errors import OutputError
-from pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
-from sinks.base import Stage
-from sinks.files import KITTI_FILE, MAP_FILE, SUMMARY_FILE, TUM_FILE, FileExportSink, map_statistics
+from aftershock.pipeline.classes import CLASS_NAMES, class_colors
+from aftershock.pipeline.cloud_io import read_cloud
+from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
+from aftershock.sinks.base import Stage
+from aftershock.sinks.files import KITTI_FILE, MAP_FILE, SUMMARY_FILE, TUM_FILE, FileExportSink, map_statistics
 
 
 def _export(folder: Path, frames_: list[Frame], force: bool = False, interrupted: bool = False) -> FileExportSink:

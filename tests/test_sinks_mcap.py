@@ -17,12 +17,12 @@ from mcap_ros2.decoder import DecoderFactory
 from rrd_read import read_rrd
 from sinks_data import VELODYNE, frames
 
-from pipeline.classes import UNLABELLED, class_colors
-from pipeline.errors import OutputError
-from pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
-from sinks.base import Stage
-from sinks.mcap_sink import MAX_PENDING, POINTS_TOPIC, POSE_TOPIC, McapSink
-from sources.pointcloud2 import decode_pointcloud2, pose_to_matrix, unpack_rgb
+from aftershock.pipeline.classes import UNLABELLED, class_colors
+from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
+from aftershock.sinks.base import Stage
+from aftershock.sinks.mcap_sink import MAX_PENDING, POINTS_TOPIC, POSE_TOPIC, McapSink
+from aftershock.sources.pointcloud2 import decode_pointcloud2, pose_to_matrix, unpack_rgb
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -144,9 +144,9 @@ _CHILD = textwrap.dedent(
     """
     import sys
     from pathlib import Path
-    from pipeline.types import LabelledCloud, RunInfo, RunSummary
-    from sinks.base import Stage
-    from sinks.mcap_sink import McapSink
+    from aftershock.pipeline.types import LabelledCloud, RunInfo, RunSummary
+    from aftershock.sinks.base import Stage
+    from aftershock.sinks.mcap_sink import McapSink
     from sinks_data import frames
     import numpy as np
 

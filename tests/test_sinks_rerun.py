@@ -18,13 +18,13 @@ from rerun.chunk import McapReader, RrdReader
 from rrd_read import read_rrd, rrd_verify
 from sinks_data import VELODYNE, frames, map_of
 
-from pipeline.classes import UNLABELLED
-from pipeline.config import RerunConfig
-from pipeline.errors import OutputError
-from pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Story
-from sinks import rerun_blueprint as L
-from sinks.base import Stage
-from sinks.rerun_sink import EmbeddingColors, RerunSink
+from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.config import RerunConfig
+from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.sinks import rerun_blueprint as L
+from aftershock.sinks.base import Stage
+from aftershock.sinks.rerun_sink import EmbeddingColors, RerunSink
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -251,10 +251,10 @@ _CHILD = textwrap.dedent(
     """
     import sys
     from pathlib import Path
-    from pipeline.config import RerunConfig
-    from pipeline.types import RunInfo, RunSummary
-    from sinks.base import Stage
-    from sinks.rerun_sink import RerunSink
+    from aftershock.pipeline.config import RerunConfig
+    from aftershock.pipeline.types import RunInfo, RunSummary
+    from aftershock.sinks.base import Stage
+    from aftershock.sinks.rerun_sink import RerunSink
     from sinks_data import frames, map_of
 
     log, out = Path(sys.argv[1]), Path(sys.argv[2])

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from fixtures import PERIOD_NS, T0_NS, write_bag, xyz_columns
 
-import sources
-from pipeline.errors import InputError
-from sources.files import FILE_PERIOD_NS, lzf_decompress, read_pcd
+from aftershock import sources
+from aftershock.pipeline.errors import InputError
+from aftershock.sources.files import FILE_PERIOD_NS, lzf_decompress, read_pcd
 
 
 def points_of(n: int, seed: int) -> np.ndarray:

@@ -21,9 +21,9 @@ from fixtures import (
 from mcap.writer import CompressionType
 from scipy.spatial.transform import Rotation
 
-import sources
-from pipeline.errors import DamagedLogWarning, InputError
-from sources.mcap_source import read_catalog
+from aftershock import sources
+from aftershock.pipeline.errors import DamagedLogWarning, InputError
+from aftershock.sources.mcap_source import read_catalog
 
 
 def clouds(k: int, n: int = 200) -> list[dict]:
@@ -166,7 +166,7 @@ def test_bad_inputs(tmp_path: Path) -> None:
 
 def test_streams_one_scan_at_a_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Lazy: a scan is decoded when it is asked for, and clouds skipped by --every are never decoded."""
-    import sources.mcap_source as ms
+    import aftershock.sources.mcap_source as ms
 
     decoded = []
     real = ms._decode_cloud

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-import sources
-from sources.inspect import inspect
+from aftershock import sources
+from aftershock.sources.inspect import inspect
 
 VLP16 = "velodyne_vlp16_indoor.mcap"
 OS128 = "ouster_os1_128_outdoor.mcap"

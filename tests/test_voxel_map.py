@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.classes import UNLABELLED
-from pipeline.cluster import InstanceClusterer
-from pipeline.voxel_map import KeyTable, VoxelMap, pack_keys, unpack_keys
+from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.cluster import InstanceClusterer
+from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys, unpack_keys
 
 
 def test_key_table_finds_what_it_holds_through_growth() -> None:

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from pipeline.config import load_config
-from pipeline.errors import InputError
+from aftershock.pipeline.config import load_config
+from aftershock.pipeline.errors import InputError
 
 
 def parse_box(text: str) -> np.ndarray:
@@ -63,9 +63,9 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (nothing else on stdout)."),
     ) -> None:
         """Detect cracks (unsupervised), measure each one on its own plane, and score against a mask."""
-        from pipeline.cloud_io import check_output, read_cloud
-        from pipeline.damage.components import in_box
-        from pipeline.damage.report import find_cracks
+        from aftershock.pipeline.cloud_io import check_output, read_cloud
+        from aftershock.pipeline.damage.components import in_box
+        from aftershock.pipeline.damage.report import find_cracks
 
         cfg = load_config(config, set_)
         if report is not None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.config import load_config
+from aftershock.pipeline.config import load_config
 
 
 def register(app: typer.Typer) -> None:
@@ -22,10 +22,10 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (nothing else on stdout)."),
     ) -> None:
         """Drift (mm) and tilt (degrees) of every story slab against the lowest one."""
-        from pipeline.cloud_io import read_cloud
-        from pipeline.damage.drift import Gravity, measure_drift
-        from pipeline.damage.report import story_json
-        from pipeline.errors import InputError
+        from aftershock.pipeline.cloud_io import read_cloud
+        from aftershock.pipeline.damage.drift import Gravity, measure_drift
+        from aftershock.pipeline.damage.report import story_json
+        from aftershock.pipeline.errors import InputError
 
         sets = list(set_ or [])
         if gravity is not None:

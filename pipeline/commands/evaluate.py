@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 import typer
 
-from pipeline.errors import InputError
-from pipeline.metrics import cluster_scores, instance_scores, semantic_scores
-from pipeline.stream import StreamResult, run_stream
-from pipeline.types import Scan
-from pipeline.voxel_map import VoxelMap
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.metrics import cluster_scores, instance_scores, semantic_scores
+from aftershock.pipeline.stream import StreamResult, run_stream
+from aftershock.pipeline.types import Scan
+from aftershock.pipeline.voxel_map import VoxelMap
 
 
 def evaluate_map(vmap: VoxelMap) -> dict[str, Any]:
@@ -113,7 +113,7 @@ def print_report(rep: dict[str, Any]) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    from pipeline.commands.run import LABELLER_HELP, build_config, open_scans
+    from aftershock.pipeline.commands.run import LABELLER_HELP, build_config, open_scans
 
     @app.command("eval")
     def evaluate(

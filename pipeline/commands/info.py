@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 
 import typer
 
-from pipeline import progress
+from aftershock.pipeline import progress
 
 
 def _when(ns: int | None) -> str:
@@ -63,7 +63,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Topics, duration, fields and points per scan of a log: what to know before replaying it."""
-        from sources.inspect import inspect
+        from aftershock.sources.inspect import inspect
 
         summary = inspect(path, progress=progress.enabled(quiet), topic=topic)
         if as_json:

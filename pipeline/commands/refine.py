@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from pipeline.errors import InputError
+from aftershock.pipeline.errors import InputError
 
 
 def register(app: typer.Typer) -> None:
@@ -31,11 +31,11 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the results as JSON (nothing else on stdout)."),
     ) -> None:
         """Re-segment a cloud into objects by learnt region growing."""
-        from pipeline.cloud_io import check_output, read_cloud, write_cloud
-        from pipeline.config import load_config
-        from pipeline.refine import baseline_cloud, refine_cloud, scores
-        from pipeline.refine.baselines import available
-        from pipeline.refine.features import voxelise
+        from aftershock.pipeline.cloud_io import check_output, read_cloud, write_cloud
+        from aftershock.pipeline.config import load_config
+        from aftershock.pipeline.refine import baseline_cloud, refine_cloud, scores
+        from aftershock.pipeline.refine.baselines import available
+        from aftershock.pipeline.refine.features import voxelise
 
         cfg = load_config(config, set_).lrgnet
         updates = {"search": search, "score": score, "seed": seed, "weights": str(weights) if weights else None}

@@ -17,13 +17,13 @@ from typing import Any, Final
 import numpy as np
 import typer
 
-from pipeline.config import Config, load_config
-from pipeline.errors import InputError
-from pipeline.label import FALLBACK_LABELLER, LABELLERS
-from pipeline.progress import enabled
-from pipeline.stream import StreamResult, run_stream
-from pipeline.types import LabelledCloud, RunInfo, Scan
-from sinks.base import Sink
+from aftershock.pipeline.config import Config, load_config
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.label import FALLBACK_LABELLER, LABELLERS
+from aftershock.pipeline.progress import enabled
+from aftershock.pipeline.stream import StreamResult, run_stream
+from aftershock.pipeline.types import LabelledCloud, RunInfo, Scan
+from aftershock.sinks.base import Sink
 
 LABELLER_HELP: Final = (
     f"One of: {', '.join(LABELLERS)}. Default mcpnet; the {FALLBACK_LABELLER} baseline if its weights are missing."
@@ -66,7 +66,7 @@ def resolve_source(source: str | None) -> str:
 
 def open_scans(source: str, cfg: Config, quiet: bool) -> tuple[Iterator[Scan], RunInfo]:
     """The scans of a source (errors in the input raise here) and what the sinks need to know about it."""
-    import sources
+    from aftershock import sources
 
     desc = sources.describe(source, cfg.source.topic)
     scans = sources.open(
@@ -98,15 +98,15 @@ def make_sinks(
     sinks: list[Sink] = []
     try:
         if save is not None or spawn or connect is not None:
-            from sinks.rerun_sink import RerunSink
+            from aftershock.sinks.rerun_sink import RerunSink
 
             sinks.append(RerunSink(save, spawn, connect, cfg.rerun, force))
         if mcap_out is not None:
-            from sinks.mcap_sink import McapSink
+            from aftershock.sinks.mcap_sink import McapSink
 
             sinks.append(McapSink(mcap_out, force))
         if export is not None:
-            from sinks.files import FileExportSink
+            from aftershock.sinks.files import FileExportSink
 
             sinks.append(FileExportSink(export, force, refine=refine, damage=damage))
     except BaseException:
@@ -167,7 +167,7 @@ class OnDemand:
 
     def __post_init__(self) -> None:
         if self.refine:  # a missing or mismatched weights file is an error before any work, not after the run
-            from pipeline.refine import load_network
+            from aftershock.pipeline.refine import load_network
 
             self.net = load_network(self.cfg.lrgnet)
 
@@ -184,7 +184,7 @@ class OnDemand:
             self._damage(cloud, sinks)
 
     def _refine(self, cloud: LabelledCloud, sinks: Sequence[Sink]) -> None:
-        from pipeline.refine import refine_cloud
+        from aftershock.pipeline.refine import refine_cloud
 
         self.notice(f"refining {len(cloud)} map points with LRGNet ({self.cfg.lrgnet.search})")
         t0 = perf_counter()
@@ -200,7 +200,7 @@ class OnDemand:
         }
 
     def _damage(self, cloud: LabelledCloud, sinks: Sequence[Sink]) -> None:
-        from pipeline.damage.report import assess_damage
+        from aftershock.pipeline.damage.report import assess_damage
 
         self.notice(f"assessing damage on {len(cloud)} map points")
         t0 = perf_counter()

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import typer
 
-from pipeline import progress
-from pipeline.classes import CLASS_NAMES
-from pipeline.errors import InputError
+from aftershock.pipeline import progress
+from aftershock.pipeline.classes import CLASS_NAMES
+from aftershock.pipeline.errors import InputError
 
 
 def _class_name(i: int) -> str:
@@ -39,9 +39,9 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Simulate a robot mission through a procedural building: labelled scans and true poses."""
-        from pipeline.cloud_io import check_output, write_cloud
-        from sources.simulated import SimSpec, check_spec, make_mission
-        from sources.simulator.recording import truth_to_dict, write_mission
+        from aftershock.pipeline.cloud_io import check_output, write_cloud
+        from aftershock.sources.simulated import SimSpec, check_spec, make_mission
+        from aftershock.sources.simulator.recording import truth_to_dict, write_mission
 
         if out is None and static_out is None and truth_out is None:
             raise InputError("nothing to write: give --out, --static-out and/or --truth-out")
@@ -64,7 +64,7 @@ def register(app: typer.Typer) -> None:
             "building_and_plan_s": round(setup_s, 3),
         }
         if out is not None:
-            from pipeline.progress import track
+            from aftershock.pipeline.progress import track
 
             t1 = time.perf_counter()
             stream = track(mission, total=len(mission), desc="simulating", show=progress.enabled(quiet))

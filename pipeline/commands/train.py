@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the training figures as JSON."),
     ) -> None:
         """Train a network from simulated missions and write its weights."""
-        module = importlib.import_module(f"models.{model.value}_train")
+        module = importlib.import_module(f"aftershock.models.{model.value}_train")
         figures = module.train(out=out, seed=seed, epochs=epochs, force=force)
         if as_json:
             print(json.dumps(figures, indent=2))

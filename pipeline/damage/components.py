@@ -11,10 +11,10 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.classes import STRUCTURAL_CLASSES
-from pipeline.config import CrackConfig
-from pipeline.geometry import pca_normals, threshold_region_growing, voxel_downsample
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.classes import STRUCTURAL_CLASSES
+from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.geometry import pca_normals, threshold_region_growing, voxel_downsample
+from aftershock.pipeline.types import LabelledCloud
 
 COLUMN_DIMS_M: Final = (0.4, 0.4, 2.6)  # the study's columns
 SLAB_DIMS_M: Final = (5.0, 3.0, 0.5)
@@ -29,7 +29,7 @@ def in_box(points: np.ndarray, box: np.ndarray) -> np.ndarray:
 def extents(points: np.ndarray) -> np.ndarray:
     """Sizes (3,) of a point set, largest first: along its principal axis, then the sides of the minimum-area
     rectangle of its cross-section (a square column's cross-section has no principal direction of its own)."""
-    from pipeline.damage.measure import min_area_rectangle
+    from aftershock.pipeline.damage.measure import min_area_rectangle
 
     sample = points[:: max(1, len(points) // 20000)]
     centred = sample - sample.mean(axis=0)

@@ -16,8 +16,8 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.geometry import block_sums
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.geometry import block_sums
 
 # K of the clustering baselines per feature set, as in the study (2 to 5 clusters).
 CLUSTERS_PER_FEATURE: Final[dict[str, int]] = {

@@ -21,8 +21,8 @@ from typing import Final
 import numpy as np
 from scipy.ndimage import median_filter
 
-from pipeline.config import DriftConfig
-from pipeline.types import Story
+from aftershock.pipeline.config import DriftConfig
+from aftershock.pipeline.types import Story
 
 _MIN_SLAB_POINTS: Final = 50
 _RANSAC_SCORE_POINTS: Final = 4000  # hypotheses are scored on a sample; the winner is refined on all points
@@ -324,7 +324,7 @@ def story_step(
 def _bands(pts: np.ndarray, cfg: DriftConfig) -> list[tuple[float, float]]:
     """Slab bands with bins no finer than the point spacing (a voxelised map would alias finer bins), over
     the same height window whatever the bin."""
-    from pipeline.damage.measure import point_spacing
+    from aftershock.pipeline.damage.measure import point_spacing
 
     bin_m = max(cfg.bin_m, point_spacing(pts, sample=5000, seed=cfg.seed))
     window = max(3, round(cfg.neighbourhood_bins * cfg.bin_m / bin_m))

@@ -13,10 +13,10 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.config import CrackConfig
-from pipeline.errors import InputError
-from pipeline.geometry import block_pca
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.geometry import block_pca
+from aftershock.pipeline.types import LabelledCloud
 
 _MAD_TO_SIGMA: Final = 1.4826
 
@@ -82,7 +82,7 @@ def _fpfh(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
 
 
 def _crackembed(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
-    from models.crackembed import embed
+    from aftershock.models.crackembed import embed
 
     return embed(cloud, cfg)
 

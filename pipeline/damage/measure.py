@@ -12,8 +12,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from pipeline.geometry import radius_pairs
-from pipeline.types import Crack
+from aftershock.pipeline.geometry import radius_pairs
+from aftershock.pipeline.types import Crack
 
 _EPS: Final = 1e-12
 

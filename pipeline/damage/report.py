@@ -9,9 +9,9 @@ from typing import Any, Final
 
 import numpy as np
 
-from pipeline.config import Config, CrackConfig
-from pipeline.damage.components import extract_elements
-from pipeline.damage.detectors import (
+from aftershock.pipeline.config import Config, CrackConfig
+from aftershock.pipeline.damage.components import extract_elements
+from aftershock.pipeline.damage.detectors import (
     ANOMALY_DETECTORS,
     CLUSTERS_PER_FEATURE,
     Detection,
@@ -23,12 +23,12 @@ from pipeline.damage.detectors import (
     smooth,
     valley_threshold,
 )
-from pipeline.damage.drift import DriftResult, measure_drift
-from pipeline.damage.features import FeatureSet, compute_features, parse_features
-from pipeline.damage.measure import Scores, fit_plane, measure_cracks, point_spacing, score, supported
-from pipeline.errors import InputError
-from pipeline.geometry import voxel_downsample
-from pipeline.types import Crack, LabelledCloud, Story
+from aftershock.pipeline.damage.drift import DriftResult, measure_drift
+from aftershock.pipeline.damage.features import FeatureSet, compute_features, parse_features
+from aftershock.pipeline.damage.measure import Scores, fit_plane, measure_cracks, point_spacing, score, supported
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.geometry import voxel_downsample
+from aftershock.pipeline.types import Crack, LabelledCloud, Story
 
 COLUMN_RESOLUTION_M: Final = 0.001  # the study's evaluation grids
 SLAB_RESOLUTION_M: Final = 0.01

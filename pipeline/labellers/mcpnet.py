@@ -17,10 +17,17 @@ from typing import Final
 import numpy as np
 import torch
 
-from models.mcpnet import NetConfig, context_draws, context_features, default_weights, load_model, point_features
-from pipeline.config import Config, Environment
-from pipeline.types import Frame, LabelledCloud
-from pipeline.voxel_map import VoxelMap
+from aftershock.models.mcpnet import (
+    NetConfig,
+    context_draws,
+    context_features,
+    default_weights,
+    load_model,
+    point_features,
+)
+from aftershock.pipeline.config import Config, Environment
+from aftershock.pipeline.types import Frame, LabelledCloud
+from aftershock.pipeline.voxel_map import VoxelMap
 
 NAME: Final = "mcpnet"
 NO_CONTEXT: Final = "mcpnet-nocontext"

@@ -18,11 +18,11 @@ from typing import Final
 import numpy as np
 import torch
 
-from models.mcpnet import default_weights, load_model, point_features
-from pipeline.config import Config, Environment
-from pipeline.labellers.mcpnet import floor_height
-from pipeline.types import Frame
-from pipeline.voxel_map import VoxelMap
+from aftershock.models.mcpnet import default_weights, load_model, point_features
+from aftershock.pipeline.config import Config, Environment
+from aftershock.pipeline.labellers.mcpnet import floor_height
+from aftershock.pipeline.types import Frame
+from aftershock.pipeline.voxel_map import VoxelMap
 
 MODES: Final[dict[str, str]] = {"pointnet": "single", "pointnet-temporal": "temporal", "pointnet-spatial": "spatial"}
 TEMPORAL_WINDOW_S: Final = 0.1

@@ -21,12 +21,12 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.classes import SemanticClass
-from pipeline.config import Config
-from pipeline.geometry import group_pca
-from pipeline.register import norms
-from pipeline.types import Frame
-from pipeline.voxel_map import VoxelMap
+from aftershock.pipeline.classes import SemanticClass
+from aftershock.pipeline.config import Config
+from aftershock.pipeline.geometry import group_pca
+from aftershock.pipeline.register import norms
+from aftershock.pipeline.types import Frame
+from aftershock.pipeline.voxel_map import VoxelMap
 
 NAME: Final = "region-growing"
 NORMAL_RADIUS_VOXELS: Final = 2

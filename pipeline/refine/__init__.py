@@ -15,13 +15,13 @@ from typing import Any, Final
 import numpy as np
 import torch
 
-from models.lrgnet import LRGNet, load_weights
-from pipeline.config import LRGNetConfig
-from pipeline.errors import InputError
-from pipeline.geometry import attach_small_segments
-from pipeline.refine.features import NUM_FEATURES, VoxelCloud, voxelise
-from pipeline.refine.grow import Grower, Search
-from pipeline.types import LabelledCloud
+from aftershock.models.lrgnet import LRGNet, load_weights
+from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.geometry import attach_small_segments
+from aftershock.pipeline.refine.features import NUM_FEATURES, VoxelCloud, voxelise
+from aftershock.pipeline.refine.grow import Grower, Search
+from aftershock.pipeline.types import LabelledCloud
 
 WEIGHTS_DIR: Final = Path(__file__).resolve().parents[2] / "models" / "weights"
 DEFAULT_WEIGHTS: Final = WEIGHTS_DIR / "lrgnet.pt"
@@ -100,7 +100,7 @@ def refine_cloud(
 
 def baseline_cloud(cloud: LabelledCloud, name: str, cfg: LRGNetConfig, vc: VoxelCloud | None = None) -> RefineResult:
     """One of the classical baselines (`pipeline.refine.baselines`) on the same voxels as LRGNet."""
-    from pipeline.refine.baselines import run_baseline
+    from aftershock.pipeline.refine.baselines import run_baseline
 
     t0 = time.perf_counter()
     vc = vc or voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
@@ -116,7 +116,7 @@ def baseline_cloud(cloud: LabelledCloud, name: str, cfg: LRGNetConfig, vc: Voxel
 
 def scores(true_ids: np.ndarray, pred_ids: np.ndarray) -> dict[str, float]:
     """NMI, AMI, ARI over points; precision, recall and mean IoU at IoU 0.5 with one-to-one matching."""
-    from pipeline.metrics import cluster_scores, instance_scores
+    from aftershock.pipeline.metrics import cluster_scores, instance_scores
 
     c = cluster_scores(true_ids, pred_ids)
     i = instance_scores(true_ids, pred_ids)

@@ -15,10 +15,10 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from pipeline.config import LRGNetConfig
-from pipeline.geometry import attach_small_segments, smoothness_region_growing, threshold_region_growing
-from pipeline.refine.features import NORMAL, VoxelCloud
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.geometry import attach_small_segments, smoothness_region_growing, threshold_region_growing
+from aftershock.pipeline.refine.features import NORMAL, VoxelCloud
+from aftershock.pipeline.types import LabelledCloud
 
 FPFH_RADIUS_VOXELS: Final = 2.5  # FPFH over ~0.25 m at 0.1 m voxels
 FPFH_MAX_NN: Final = 50
@@ -83,8 +83,8 @@ def fpfh_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> 
 
 def mcpnet_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:
     """Components over MCPNet's embeddings of the voxel points (the clustering stage's rule, β indoor)."""
-    from pipeline.config import Config
-    from pipeline.labellers.mcpnet import create
+    from aftershock.pipeline.config import Config
+    from aftershock.pipeline.labellers.mcpnet import create
 
     vox = cloud.select(vc.first_point)
     vox.points = vc.points
@@ -103,7 +103,7 @@ BASELINES: Final[dict[Baseline, Callable[[LabelledCloud, VoxelCloud, LRGNetConfi
 def available() -> list[Baseline]:
     """The baselines this checkout can run (MCPNet's embedding needs its labeller)."""
     try:
-        from pipeline.labellers.mcpnet import MCPNetLabeller
+        from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller
     except ImportError:
         return [b for b in Baseline if b != Baseline.MCPNET]
     return list(Baseline) if hasattr(MCPNetLabeller, "embed_cloud") else [b for b in Baseline if b != Baseline.MCPNET]

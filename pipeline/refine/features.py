@@ -14,8 +14,8 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.geometry import voxel_keys
-from pipeline.types import LabelledCloud
+from aftershock.pipeline.geometry import voxel_keys
+from aftershock.pipeline.types import LabelledCloud
 
 NUM_FEATURES: Final = 13
 LOCAL_XY: Final = slice(0, 2)

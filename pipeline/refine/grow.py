@@ -16,9 +16,9 @@ from typing import Final
 import numpy as np
 import torch
 
-from models.lrgnet import LRGNet
-from pipeline.config import LRGNetConfig
-from pipeline.refine.features import VoxelCloud, region_centre, step_features
+from aftershock.models.lrgnet import LRGNet
+from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.refine.features import VoxelCloud, region_centre, step_features
 
 CHUNK: Final = 8192  # candidates per head evaluation
 NOT_EXPANDING_STOP: Final = 2

@@ -6,13 +6,13 @@ for scan in Mission(scene, get_profile("vlp16"), scans=50):
 static = scene.sample_static_cloud(spacing_m=0.05, seed=0)
 """
 
-from sources.simulator.building import build_scene
-from sources.simulator.cracks import ELEMENTS, cracked_element
-from sources.simulator.damage import CrackTruth
-from sources.simulator.families import FAMILIES, FamilySpec
-from sources.simulator.mission import Mission
-from sources.simulator.profiles import PROFILES, SensorProfile, get_profile
-from sources.simulator.scene import Scene, SceneTruth, StoryTruth
+from aftershock.sources.simulator.building import build_scene
+from aftershock.sources.simulator.cracks import ELEMENTS, cracked_element
+from aftershock.sources.simulator.damage import CrackTruth
+from aftershock.sources.simulator.families import FAMILIES, FamilySpec
+from aftershock.sources.simulator.mission import Mission
+from aftershock.sources.simulator.profiles import PROFILES, SensorProfile, get_profile
+from aftershock.sources.simulator.scene import Scene, SceneTruth, StoryTruth
 
 __all__ = [
     "ELEMENTS",

@@ -12,10 +12,10 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.classes import SemanticClass as C
-from sources.simulator import furniture as fur
-from sources.simulator.contents import furnish
-from sources.simulator.damage import (
+from aftershock.pipeline.classes import SemanticClass as C
+from aftershock.sources.simulator import furniture as fur
+from aftershock.sources.simulator.contents import furnish
+from aftershock.sources.simulator.damage import (
     CrackTruth,
     debris_pile,
     deform,
@@ -23,9 +23,9 @@ from sources.simulator.damage import (
     make_crack,
     random_crack_size,
 )
-from sources.simulator.families import family_spec
-from sources.simulator.layout import Opening, Plan, Wall, make_plan
-from sources.simulator.meshes import (
+from aftershock.sources.simulator.families import family_spec
+from aftershock.sources.simulator.layout import Opening, Plan, Wall, make_plan
+from aftershock.sources.simulator.meshes import (
     CONCRETE,
     GLASS,
     METAL,
@@ -36,8 +36,8 @@ from sources.simulator.meshes import (
     rotation_xyz,
     rotation_z,
 )
-from sources.simulator.raycast import Raycaster
-from sources.simulator.scene import Scene, SceneTruth, StoryTruth, plane_of
+from aftershock.sources.simulator.raycast import Raycaster
+from aftershock.sources.simulator.scene import Scene, SceneTruth, StoryTruth, plane_of
 
 CRACK_COLOR: Final = (62, 58, 52)
 

@@ -5,15 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.classes import SemanticClass as C
-from sources.simulator import furniture as fur
-from sources.simulator.layout import OUTER_WALL_M, Plan
-from sources.simulator.meshes import (
+from aftershock.pipeline.classes import SemanticClass as C
+from aftershock.sources.simulator import furniture as fur
+from aftershock.sources.simulator.layout import OUTER_WALL_M, Plan
+from aftershock.sources.simulator.meshes import (
     MeshBuilder,
     rotation_xyz,
     rotation_z,
 )
-from sources.simulator.scene import Room
+from aftershock.sources.simulator.scene import Room
 
 
 class _Free:

@@ -14,10 +14,10 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.classes import SemanticClass
-from pipeline.errors import InputError
-from pipeline.types import LabelledCloud
-from sources.simulator.damage import CrackTruth, crack_polyline, crack_widths, distance_to_polylines
+from aftershock.pipeline.classes import SemanticClass
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.types import LabelledCloud
+from aftershock.sources.simulator.damage import CrackTruth, crack_polyline, crack_widths, distance_to_polylines
 
 SCANNER_NOISE_M: Final = 0.0005
 ELEMENT_INSTANCE: Final = 1

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.classes import SemanticClass
-from sources.simulator.meshes import METAL, RUBBLE, MeshBuilder, rotation_xyz
+from aftershock.pipeline.classes import SemanticClass
+from aftershock.sources.simulator.meshes import METAL, RUBBLE, MeshBuilder, rotation_xyz
 
 
 @dataclass(frozen=True, slots=True)

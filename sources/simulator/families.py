@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Final
 
-from pipeline.errors import InputError
+from aftershock.pipeline.errors import InputError
 
 
 @dataclass(frozen=True, slots=True)

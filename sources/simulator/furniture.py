@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.classes import SemanticClass
-from sources.simulator.meshes import FABRIC, METAL, WHITEBOARD, WOOD, Material, MeshBuilder
+from aftershock.pipeline.classes import SemanticClass
+from aftershock.sources.simulator.meshes import FABRIC, METAL, WHITEBOARD, WOOD, Material, MeshBuilder
 
 
 @dataclass(frozen=True, slots=True)

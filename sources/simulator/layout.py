@@ -9,8 +9,8 @@ from typing import Final
 
 import numpy as np
 
-from sources.simulator.families import FamilySpec
-from sources.simulator.scene import Room
+from aftershock.sources.simulator.families import FamilySpec
+from aftershock.sources.simulator.scene import Room
 
 OUTER_WALL_M: Final = 0.25
 PARTITION_M: Final = 0.12

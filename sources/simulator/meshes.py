@@ -13,7 +13,7 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.classes import SemanticClass
+from aftershock.pipeline.classes import SemanticClass
 
 # Corners of the unit cube centred at the origin, and its 12 outward-facing triangles.
 _CUBE_CORNERS: Final[np.ndarray] = np.array(

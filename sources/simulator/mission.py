@@ -12,10 +12,10 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.types import Scan
-from sources.simulator.profiles import SensorProfile
-from sources.simulator.scene import Scene
-from sources.simulator.trajectory import WALK_SPEED_MPS, Trajectory, plan_tour
+from aftershock.pipeline.types import Scan
+from aftershock.sources.simulator.profiles import SensorProfile
+from aftershock.sources.simulator.scene import Scene
+from aftershock.sources.simulator.trajectory import WALK_SPEED_MPS, Trajectory, plan_tour
 
 START_NS: Final = 1_700_000_000_000_000_000  # a fixed epoch, so the same seed gives the same stamps
 DEFAULT_SCANS: Final = 100

@@ -11,7 +11,7 @@ from typing import Final
 
 import numpy as np
 
-from pipeline.errors import InputError
+from aftershock.pipeline.errors import InputError
 
 
 class Spin(StrEnum):

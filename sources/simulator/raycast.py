@@ -7,7 +7,7 @@ from typing import Final
 import numpy as np
 import open3d as o3d
 
-from sources.simulator.meshes import LabelledMesh
+from aftershock.sources.simulator.meshes import LabelledMesh
 
 INVALID: Final = int(o3d.t.geometry.RaycastingScene.INVALID_ID)
 

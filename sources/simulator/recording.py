@@ -21,10 +21,10 @@ from typing import Final
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from pipeline.cloud_io import check_output
-from pipeline.errors import OutputError
-from pipeline.types import Scan
-from sources.pointcloud2 import (
+from aftershock.pipeline.cloud_io import check_output
+from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.types import Scan
+from aftershock.sources.pointcloud2 import (
     POINTCLOUD2_MSGDEF,
     POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
@@ -32,7 +32,7 @@ from sources.pointcloud2 import (
     serialize_pointcloud2,
     serialize_pose_stamped,
 )
-from sources.simulator.scene import SceneTruth
+from aftershock.sources.simulator.scene import SceneTruth
 
 POINTS_TOPIC: Final = "/lidar/points"
 POSE_TOPIC: Final = "/ground_truth/pose"

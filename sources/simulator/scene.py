@@ -12,12 +12,12 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
-from pipeline.types import LabelledCloud
-from sources.simulator.damage import CrackTruth, LevelMotion, crack_segments, distance_to_polylines
-from sources.simulator.meshes import LabelledMesh
+from aftershock.pipeline.types import LabelledCloud
+from aftershock.sources.simulator.damage import CrackTruth, LevelMotion, crack_segments, distance_to_polylines
+from aftershock.sources.simulator.meshes import LabelledMesh
 
 if TYPE_CHECKING:
-    from sources.simulator.raycast import Raycaster
+    from aftershock.sources.simulator.raycast import Raycaster
 
 STATION_HEIGHT_M: Final = 1.6  # tripod height of the static-scan stations above the floor
 STATIC_RANGE_NOISE_M: Final = 0.002  # a terrestrial scanner is millimetre-accurate
@@ -110,7 +110,7 @@ class Scene:
     @property
     def raycaster(self) -> Raycaster:
         if self._raycaster is None:
-            from sources.simulator.raycast import Raycaster
+            from aftershock.sources.simulator.raycast import Raycaster
 
             self._raycaster = Raycaster(self.mesh)
         return self._raycaster
@@ -174,7 +174,7 @@ class Scene:
 
     def static_stations(self) -> np.ndarray:
         """Scanner stations (S, 3): one per room and every ~6 m of corridor, on every story, in free space."""
-        from sources.simulator.trajectory import free_space
+        from aftershock.sources.simulator.trajectory import free_space
 
         out = []
         for story in range(self.num_stories):
@@ -202,7 +202,7 @@ class Scene:
     def sample_static_cloud(self, spacing_m: float = 0.05, seed: int = 0, max_range_m: float = 30.0) -> LabelledCloud:
         """The labelled full-building "static scan": ray cast from stations in every room, thinned to one
         point per `spacing_m` voxel (the first in station order), with millimetre range noise."""
-        from pipeline.geometry import voxel_downsample
+        from aftershock.pipeline.geometry import voxel_downsample
 
         if spacing_m <= 0:
             raise ValueError("spacing must be positive")

@@ -17,7 +17,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 if TYPE_CHECKING:
-    from sources.simulator.scene import Room, Scene
+    from aftershock.sources.simulator.scene import Room, Scene
 
 CELL_M: Final = 0.1
 CLEARANCE_M: Final = 0.28  # robot half width plus a margin
