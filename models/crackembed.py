@@ -17,14 +17,14 @@ import numpy as np
 import torch
 from torch import nn
 
-from aftershock.models.weights_file import read_weights
+from aftershock.models.weights_file import WEIGHTS_DIR, read_weights
 from aftershock.pipeline.config import CrackConfig
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.types import LabelledCloud
 
 NEIGHBOURS: Final = 16
 EMBED_DIM: Final = 16
-WEIGHTS: Final = Path(__file__).resolve().parent / "weights" / "crackembed.pt"
+WEIGHTS: Final = WEIGHTS_DIR / "crackembed.pt"
 _MAGIC: Final = "crackembed-v1"
 _CHUNK: Final = 32768
 
@@ -84,7 +84,7 @@ def load_model(path: str | Path | None = None) -> CrackEmbed:
 
 def embed_points(model: CrackEmbed, points: np.ndarray, colors: np.ndarray, neighbourhood_m: float) -> np.ndarray:
     """(N, EMBED_DIM) float32 embeddings, computed in batches without gradients."""
-    from aftershock.pipeline.damage.measure import point_spacing
+    from aftershock.pipeline.geometry import point_spacing
 
     nb, own = point_inputs(points, colors, neighbourhood_m, point_spacing(points))
     out = np.empty((len(points), EMBED_DIM), np.float32)

@@ -11,8 +11,6 @@ only, so a point's label never changes with the points it is batched with.
 
 from __future__ import annotations
 
-import itertools
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Final
 
@@ -20,59 +18,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from aftershock.models.weights_file import read_weights
+from aftershock.models.layers import mlp
+from aftershock.models.netconfig import CONTEXT_DIM, CONTEXT_FEATURES, POINT_DIM, POINT_FEATURES, NetConfig
+from aftershock.models.pointnet import PointNet
+from aftershock.models.weights_file import WEIGHTS_DIR, read_weights
 from aftershock.pipeline.classes import NUM_CLASSES
 from aftershock.pipeline.errors import InputError
 
-WEIGHTS_DIR: Final = Path(__file__).resolve().parent / "weights"
 FORMAT: Final = "aftershock-mcpnet"
 FORMAT_VERSION: Final = 1
-
-# Feature layout, recorded in every weights file so that a file trained on another layout is refused.
-POINT_FEATURES: Final[tuple[str, ...]] = ("x", "y", "z", "r", "g", "b", "has_color")
-CONTEXT_FEATURES: Final[tuple[str, ...]] = ("dx", "dy", "dz", "dr", "dg", "db")
-POINT_DIM: Final = len(POINT_FEATURES)
-CONTEXT_DIM: Final = len(CONTEXT_FEATURES)
-
-
-@dataclass(frozen=True, slots=True)
-class NetConfig:
-    """What a weights file was built with: widths, the feature layout and how features were normalised."""
-
-    kind: str = "mcpnet"  # mcpnet | mcpnet-nocontext | pointnet
-    point_dim: int = POINT_DIM
-    context_dim: int = CONTEXT_DIM
-    width: int = 200
-    embed_dim: int = 50
-    num_classes: int = NUM_CLASSES
-    context_points: int = 50
-    context_cell_m: float = 0.3
-    voxel_m: float = 0.1
-    range_m: float = 4.0  # horizontal labelling range the network was trained with (see LabelConfig)
-    features: tuple[str, ...] = POINT_FEATURES
-    context_features: tuple[str, ...] = CONTEXT_FEATURES
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["features"] = list(self.features)
-        d["context_features"] = list(self.context_features)
-        return d
-
-    @staticmethod
-    def from_dict(d: dict[str, Any]) -> NetConfig:
-        d = dict(d)
-        d["features"] = tuple(d.get("features", ()))
-        d["context_features"] = tuple(d.get("context_features", ()))
-        return NetConfig(**d)
-
-
-def _mlp(*widths: int, last_relu: bool = True) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for i, (a, b) in enumerate(itertools.pairwise(widths)):
-        layers.append(nn.Linear(a, b))
-        if last_relu or i < len(widths) - 2:
-            layers.append(nn.ReLU())
-    return nn.Sequential(*layers)
 
 
 class MCPNet(nn.Module):
@@ -84,11 +38,11 @@ class MCPNet(nn.Module):
         w = cfg.width
         self.use_context = cfg.kind == "mcpnet"
         if self.use_context:
-            self.context_mlp = _mlp(cfg.context_dim, w, w)
+            self.context_mlp = mlp(cfg.context_dim, w, w)
         joined = cfg.point_dim + (w if self.use_context else 0)
-        self.point_mlp = _mlp(joined, w)
+        self.point_mlp = mlp(joined, w)
         self.embed = nn.Linear(w, cfg.embed_dim)
-        self.classify = _mlp(w + cfg.embed_dim, w, cfg.num_classes, last_relu=False)
+        self.classify = mlp(w + cfg.embed_dim, w, cfg.num_classes, last_relu=False)
 
     def pool_context(self, context: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         """max over neighbours of the shared MLP, absent neighbours left out (0 when a point has none).
@@ -154,8 +108,6 @@ def load_header(path: str | Path) -> dict[str, Any]:
 
 def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, NetConfig, dict[str, Any]]:
     """A network ready for inference from a weights file; refuses files of another kind or feature layout."""
-    from aftershock.models.pointnet import PointNet  # local: pointnet imports this module
-
     blob = load_header(path)
     try:
         cfg = NetConfig.from_dict(blob["config"])

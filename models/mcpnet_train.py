@@ -21,17 +21,15 @@ import torch
 from torch import nn
 
 from aftershock.models.mcpnet import (
-    CONTEXT_DIM,
-    POINT_DIM,
-    WEIGHTS_DIR,
     MCPNet,
-    NetConfig,
     context_draws,
     num_parameters,
     point_features,
     save_weights,
 )
+from aftershock.models.netconfig import CONTEXT_DIM, POINT_DIM, NetConfig
 from aftershock.models.pointnet import PointNet
+from aftershock.models.weights_file import WEIGHTS_DIR
 from aftershock.pipeline.classes import UNLABELLED
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.voxel_map import VoxelMap

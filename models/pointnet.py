@@ -8,7 +8,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from aftershock.models.mcpnet import NetConfig, _mlp
+from aftershock.models.layers import mlp
+from aftershock.models.netconfig import NetConfig
 
 
 class PointNet(nn.Module):
@@ -17,9 +18,9 @@ class PointNet(nn.Module):
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self.local = _mlp(cfg.point_dim, 64, 64)
-        self.lift = _mlp(64, 128, 256)
-        self.head = _mlp(64 + 256, 256, 128)
+        self.local = mlp(cfg.point_dim, 64, 64)
+        self.lift = mlp(64, 128, 256)
+        self.head = mlp(64 + 256, 256, 128)
         self.embed = nn.Linear(128, cfg.embed_dim)
         self.classify = nn.Linear(128 + cfg.embed_dim, cfg.num_classes)
 

@@ -1,13 +1,19 @@
-"""Reading a shipped weights file: missing or unreadable files are user errors that name the file and the fix."""
+"""Where the shipped weights are, and reading a weights file: missing or unreadable files are user errors that
+name the file and the fix."""
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import torch
 
 from aftershock.pipeline.errors import InputError
+
+# Found through the package, so editable and wheel installs agree; wheels install unzipped, so this is a real
+# folder (and `aftershock train ...` writes its default output there).
+WEIGHTS_DIR: Final[Path] = Path(str(resources.files("aftershock.models") / "weights"))
 
 
 def read_weights(path: str | Path, what: str, hint: str) -> dict[str, Any]:

@@ -245,3 +245,15 @@ def block_pca(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray
     sums = evals.sum(axis=1)
     curvature = np.where(sums > 0, np.clip(evals[:, 0], 0, None) / np.where(sums > 0, sums, 1), 0.0)
     return evecs[:, :, 0], curvature, count
+
+
+def point_spacing(points: np.ndarray, sample: int = 20_000, seed: int = 0) -> float:
+    """Median distance from a point to its nearest neighbour (on a random sample of at most `sample` points)."""
+    pts = np.asarray(points, np.float64)
+    if len(pts) < 2:
+        return float("inf")
+    tree = cKDTree(pts)
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(pts), size=min(sample, len(pts)), replace=False)
+    dist, _ = tree.query(pts[pick], k=2, workers=-1)
+    return float(np.median(dist[:, 1]))

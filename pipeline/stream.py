@@ -29,10 +29,10 @@ from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
 from aftershock.pipeline.register import MIN_POINTS, Registrar, guess_environment, register_stage
+from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
 from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary, Scan
 from aftershock.pipeline.voxel_map import VoxelMap
-from aftershock.sinks.base import Sink, Stage
 
 log = logging.getLogger(__name__)
 

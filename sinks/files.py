@@ -25,9 +25,9 @@ import numpy as np
 from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES, class_colors
 from aftershock.pipeline.cloud_io import check_output, write_cloud
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.pointcloud2 import matrix_to_quaternion
+from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
-from aftershock.sinks.base import Sink, Stage
-from aftershock.sources.pointcloud2 import matrix_to_quaternion
 
 MAP_FILE: Final = "map.ply"
 TUM_FILE: Final = "poses_tum.txt"

@@ -21,9 +21,7 @@ from mcap.writer import CompressionType, Writer
 from aftershock.pipeline.classes import UNLABELLED, class_colors
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.errors import OutputError
-from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
-from aftershock.sinks.base import Sink, Stage
-from aftershock.sources.pointcloud2 import (
+from aftershock.pipeline.pointcloud2 import (
     POINTCLOUD2_MSGDEF,
     POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
@@ -31,6 +29,8 @@ from aftershock.sources.pointcloud2 import (
     serialize_pointcloud2,
     serialize_pose_stamped,
 )
+from aftershock.pipeline.sink import Sink, Stage
+from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
 
 POINTS_TOPIC: Final = "/aftershock/labelled_points"
 POSE_TOPIC: Final = "/aftershock/pose"

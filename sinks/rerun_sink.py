@@ -40,9 +40,9 @@ from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.geometry import voxel_downsample
+from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Scan, Story
 from aftershock.sinks import rerun_blueprint as L
-from aftershock.sinks.base import Sink, Stage
 
 TRAJECTORY_PIECE: Final = 500  # poses per trajectory strip; older strips are never re-logged
 DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)

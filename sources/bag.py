@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 from aftershock.pipeline.types import Scan
 from aftershock.sources.common import (
     CloudMessage,
@@ -22,7 +23,6 @@ from aftershock.sources.common import (
     choose_topic,
     window_ns,
 )
-from aftershock.sources.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 
 ROS1_MAGIC: Final[bytes] = b"#ROSBAG V2.0"
 

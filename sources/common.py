@@ -16,9 +16,9 @@ from typing import Any, Final
 import numpy as np
 
 from aftershock.pipeline.errors import DamagedLogWarning, InputError
+from aftershock.pipeline.pointcloud2 import Field, NoXYZError, columns_to_scan
 from aftershock.pipeline.progress import bar
 from aftershock.pipeline.types import Scan
-from aftershock.sources.pointcloud2 import Field, NoXYZError, columns_to_scan
 
 POINTCLOUD_TYPES: Final[frozenset[str]] = frozenset(
     {"sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2", "foxglove.PointCloud"}

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Any, Final
 
+from aftershock.pipeline.pointcloud2 import Field, PointFieldType, decode_records, records_to_columns, stamp_to_ns
 from aftershock.sources.common import DecodedCloud
-from aftershock.sources.pointcloud2 import Field, PointFieldType, decode_records, records_to_columns, stamp_to_ns
 
 # foxglove.PackedElementField.NumericType -> sensor_msgs/PointField datatype
 FOXGLOVE_TYPES: Final[dict[int, PointFieldType]] = {

@@ -12,6 +12,16 @@ from typing import Any
 import numpy as np
 
 from aftershock.pipeline.errors import DamagedLogWarning, InputError
+from aftershock.pipeline.pointcloud2 import (
+    CLASS_FIELD,
+    INSTANCE_FIELD,
+    TIME_FIELDS,
+    Field,
+    PointFieldType,
+    colors_from_columns,
+    find_time_field,
+    valid_mask,
+)
 from aftershock.pipeline.progress import bar
 from aftershock.sources import SourceKind, kind_of
 from aftershock.sources.common import (
@@ -22,16 +32,6 @@ from aftershock.sources.common import (
     DecodedCloud,
     Event,
     choose_topic,
-)
-from aftershock.sources.pointcloud2 import (
-    CLASS_FIELD,
-    INSTANCE_FIELD,
-    TIME_FIELDS,
-    Field,
-    PointFieldType,
-    colors_from_columns,
-    find_time_field,
-    valid_mask,
 )
 
 

@@ -20,6 +20,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
 from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 from aftershock.pipeline.progress import bar
 from aftershock.pipeline.types import Scan
 from aftershock.sources.common import (
@@ -35,7 +36,6 @@ from aftershock.sources.common import (
     window_ns,
 )
 from aftershock.sources.foxglove import decode_foxglove_pointcloud
-from aftershock.sources.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 
 MCAP_MAGIC: Final[bytes] = b"\x89MCAP0\r\n"
 _RECORD_LIMIT: Final[int] = 1 << 30  # a record larger than 1 GiB in a LiDAR log means a corrupt length

@@ -16,8 +16,8 @@ import pytest
 from sinks_data import VELODYNE, make_frame, map_of, read_scans
 
 from aftershock.pipeline.config import RerunConfig
+from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.types import Frame, RunInfo, RunSummary, Scan
-from aftershock.sinks.base import Sink, Stage
 from aftershock.sinks.files import FileExportSink
 from aftershock.sinks.mcap_sink import McapSink
 from aftershock.sinks.rerun_sink import RerunSink

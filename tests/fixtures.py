@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
-from aftershock.sources.pointcloud2 import (
+from aftershock.pipeline.pointcloud2 import (
     POINTCLOUD2_MSGDEF,
     POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
@@ -205,8 +205,8 @@ def write_foxglove_mcap(
     from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
     from mcap_protobuf.writer import Writer
 
+    from aftershock.pipeline.pointcloud2 import PointFieldType
     from aftershock.sources.foxglove import POINTFIELD_TO_FOXGLOVE
-    from aftershock.sources.pointcloud2 import PointFieldType
 
     with path.open("wb") as fh:
         w = Writer(fh)

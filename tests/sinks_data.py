@@ -14,8 +14,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from aftershock.pipeline.classes import UNLABELLED, SemanticClass
+from aftershock.pipeline.pointcloud2 import decode_pointcloud2, valid_mask
 from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, Labels, Scan
-from aftershock.sources.pointcloud2 import decode_pointcloud2, valid_mask
 
 VELODYNE = "velodyne_vlp16_indoor.mcap"
 

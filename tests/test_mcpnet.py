@@ -14,7 +14,6 @@ import torch
 from aftershock import sources
 from aftershock.models.mcpnet import (
     MCPNet,
-    NetConfig,
     context_draws,
     default_weights,
     load_model,
@@ -22,6 +21,7 @@ from aftershock.models.mcpnet import (
     save_weights,
 )
 from aftershock.models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
+from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.classes import NUM_CLASSES, UNLABELLED
 from aftershock.pipeline.config import Config
 from aftershock.pipeline.errors import InputError

@@ -13,8 +13,8 @@ from sinks_data import VELODYNE, frames, map_of
 from aftershock.pipeline.classes import CLASS_NAMES, class_colors
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.sink import Stage
 from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
-from aftershock.sinks.base import Stage
 from aftershock.sinks.files import KITTI_FILE, MAP_FILE, SUMMARY_FILE, TUM_FILE, FileExportSink, map_statistics
 
 

@@ -19,10 +19,10 @@ from sinks_data import VELODYNE, frames
 
 from aftershock.pipeline.classes import UNLABELLED, class_colors
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.pointcloud2 import decode_pointcloud2, pose_to_matrix, unpack_rgb
+from aftershock.pipeline.sink import Stage
 from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary
-from aftershock.sinks.base import Stage
 from aftershock.sinks.mcap_sink import MAX_PENDING, POINTS_TOPIC, POSE_TOPIC, McapSink
-from aftershock.sources.pointcloud2 import decode_pointcloud2, pose_to_matrix, unpack_rgb
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -145,7 +145,7 @@ _CHILD = textwrap.dedent(
     import sys
     from pathlib import Path
     from aftershock.pipeline.types import LabelledCloud, RunInfo, RunSummary
-    from aftershock.sinks.base import Stage
+    from aftershock.pipeline.sink import Stage
     from aftershock.sinks.mcap_sink import McapSink
     from sinks_data import frames
     import numpy as np

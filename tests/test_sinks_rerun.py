@@ -21,9 +21,9 @@ from sinks_data import VELODYNE, frames, map_of
 from aftershock.pipeline.classes import UNLABELLED
 from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.sink import Stage
 from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Story
 from aftershock.sinks import rerun_blueprint as L
-from aftershock.sinks.base import Stage
 from aftershock.sinks.rerun_sink import EmbeddingColors, RerunSink
 
 REPO = Path(__file__).resolve().parents[1]
@@ -253,7 +253,7 @@ _CHILD = textwrap.dedent(
     from pathlib import Path
     from aftershock.pipeline.config import RerunConfig
     from aftershock.pipeline.types import RunInfo, RunSummary
-    from aftershock.sinks.base import Stage
+    from aftershock.pipeline.sink import Stage
     from aftershock.sinks.rerun_sink import RerunSink
     from sinks_data import frames, map_of
 

@@ -10,6 +10,7 @@ import json
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
+from importlib import resources
 from pathlib import Path
 from time import perf_counter
 from typing import Any, Final
@@ -21,14 +22,14 @@ from aftershock.pipeline.config import Config, load_config
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.label import FALLBACK_LABELLER, LABELLERS
 from aftershock.pipeline.progress import enabled
+from aftershock.pipeline.sink import Sink
 from aftershock.pipeline.stream import StreamResult, run_stream
 from aftershock.pipeline.types import LabelledCloud, RunInfo, Scan
-from aftershock.sinks.base import Sink
 
 LABELLER_HELP: Final = (
     f"One of: {', '.join(LABELLERS)}. Default mcpnet; the {FALLBACK_LABELLER} baseline if its weights are missing."
 )
-SAMPLE: Final = Path(__file__).resolve().parents[2] / "recordings" / "sample.mcap"
+SAMPLE: Final = Path(str(resources.files("aftershock.recordings") / "sample.mcap"))  # shipped in the wheel
 
 
 def build_config(

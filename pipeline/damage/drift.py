@@ -324,7 +324,7 @@ def story_step(
 def _bands(pts: np.ndarray, cfg: DriftConfig) -> list[tuple[float, float]]:
     """Slab bands with bins no finer than the point spacing (a voxelised map would alias finer bins), over
     the same height window whatever the bin."""
-    from aftershock.pipeline.damage.measure import point_spacing
+    from aftershock.pipeline.geometry import point_spacing
 
     bin_m = max(cfg.bin_m, point_spacing(pts, sample=5000, seed=cfg.seed))
     window = max(3, round(cfg.neighbourhood_bins * cfg.bin_m / bin_m))

@@ -18,18 +18,6 @@ from aftershock.pipeline.types import Crack
 _EPS: Final = 1e-12
 
 
-def point_spacing(points: np.ndarray, sample: int = 20_000, seed: int = 0) -> float:
-    """Median distance from a point to its nearest neighbour (on a random sample of at most `sample` points)."""
-    pts = np.asarray(points, np.float64)
-    if len(pts) < 2:
-        return float("inf")
-    tree = cKDTree(pts)
-    rng = np.random.default_rng(seed)
-    pick = rng.choice(len(pts), size=min(sample, len(pts)), replace=False)
-    dist, _ = tree.query(pts[pick], k=2, workers=-1)
-    return float(np.median(dist[:, 1]))
-
-
 def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centroid (3,) and rows of in-plane axes + normal (3, 3): rows 0, 1 span the plane, row 2 is the normal."""
     pts = np.asarray(points, np.float64)

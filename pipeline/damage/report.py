@@ -25,9 +25,9 @@ from aftershock.pipeline.damage.detectors import (
 )
 from aftershock.pipeline.damage.drift import DriftResult, measure_drift
 from aftershock.pipeline.damage.features import FeatureSet, compute_features, parse_features
-from aftershock.pipeline.damage.measure import Scores, fit_plane, measure_cracks, point_spacing, score, supported
+from aftershock.pipeline.damage.measure import Scores, fit_plane, measure_cracks, score, supported
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.geometry import voxel_downsample
+from aftershock.pipeline.geometry import point_spacing, voxel_downsample
 from aftershock.pipeline.types import Crack, LabelledCloud, Story
 
 COLUMN_RESOLUTION_M: Final = 0.001  # the study's evaluation grids

@@ -18,13 +18,13 @@ import numpy as np
 import torch
 
 from aftershock.models.mcpnet import (
-    NetConfig,
     context_draws,
     context_features,
     default_weights,
     load_model,
     point_features,
 )
+from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.types import Frame, LabelledCloud
 from aftershock.pipeline.voxel_map import VoxelMap

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from aftershock.models.lrgnet import LRGNet, load_weights
+from aftershock.models.weights_file import WEIGHTS_DIR
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
@@ -23,7 +24,6 @@ from aftershock.pipeline.refine.features import NUM_FEATURES, VoxelCloud, voxeli
 from aftershock.pipeline.refine.grow import Grower, Search
 from aftershock.pipeline.types import LabelledCloud
 
-WEIGHTS_DIR: Final = Path(__file__).resolve().parents[2] / "models" / "weights"
 DEFAULT_WEIGHTS: Final = WEIGHTS_DIR / "lrgnet.pt"
 FEATURE_VERSION: Final = 1  # bump when the meaning of the 13 features changes
 

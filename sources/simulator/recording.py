@@ -23,8 +23,7 @@ from mcap.writer import CompressionType, Writer
 
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.errors import OutputError
-from aftershock.pipeline.types import Scan
-from aftershock.sources.pointcloud2 import (
+from aftershock.pipeline.pointcloud2 import (
     POINTCLOUD2_MSGDEF,
     POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
@@ -32,6 +31,7 @@ from aftershock.sources.pointcloud2 import (
     serialize_pointcloud2,
     serialize_pose_stamped,
 )
+from aftershock.pipeline.types import Scan
 from aftershock.sources.simulator.scene import SceneTruth
 
 POINTS_TOPIC: Final = "/lidar/points"

@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer
 
-from aftershock.sources.pointcloud2 import (
+from aftershock.pipeline.pointcloud2 import (
     POINTCLOUD2_MSGDEF,
     POSE_STAMPED_MSGDEF,
     NoXYZError,

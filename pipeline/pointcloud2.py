@@ -1,4 +1,6 @@
-"""sensor_msgs/PointCloud2 with numpy: decode any message into columns, encode columns into a message.
+"""The ROS message codec shared by readers, writers and the simulator: sensor_msgs/PointCloud2 with numpy
+(decode any message into columns, encode columns into a message), geometry_msgs/PoseStamped, and the CDR
+serialisation of both. It depends on the vocabulary only, so sources and sinks meet here, not in each other.
 
 Fields are read by name and datatype from the message, never by assumed offsets: a structured dtype is
 built from the PointFields (offsets, `count`, `point_step` as itemsize, byte order) and laid over the

@@ -1,5 +1,6 @@
-"""The sink interface: sinks are the only code that writes. The stream hands every frame to every sink
-after each stage, and the accumulated map and on-demand results when they are ready."""
+"""The sink interface, owned by the stream that calls it: sinks are the only code that writes. The stream
+hands every frame to every sink after each stage, and the accumulated map and on-demand results when they
+are ready. Sinks (`aftershock.sinks`) implement it; nothing here knows about them."""
 
 from __future__ import annotations
 

@@ -1,0 +1,47 @@
+"""What a network weights file was built with (MCPNet, its no-context variant, PointNet): widths, the feature
+layout and the labelling range. Recorded in every weights file so that a file trained on another layout is
+refused."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Final
+
+from aftershock.pipeline.classes import NUM_CLASSES
+
+# Feature layout, recorded in every weights file so that a file trained on another layout is refused.
+POINT_FEATURES: Final[tuple[str, ...]] = ("x", "y", "z", "r", "g", "b", "has_color")
+CONTEXT_FEATURES: Final[tuple[str, ...]] = ("dx", "dy", "dz", "dr", "dg", "db")
+POINT_DIM: Final = len(POINT_FEATURES)
+CONTEXT_DIM: Final = len(CONTEXT_FEATURES)
+
+
+@dataclass(frozen=True, slots=True)
+class NetConfig:
+    """What a weights file was built with: widths, the feature layout and how features were normalised."""
+
+    kind: str = "mcpnet"  # mcpnet | mcpnet-nocontext | pointnet
+    point_dim: int = POINT_DIM
+    context_dim: int = CONTEXT_DIM
+    width: int = 200
+    embed_dim: int = 50
+    num_classes: int = NUM_CLASSES
+    context_points: int = 50
+    context_cell_m: float = 0.3
+    voxel_m: float = 0.1
+    range_m: float = 4.0  # horizontal labelling range the network was trained with (see LabelConfig)
+    features: tuple[str, ...] = POINT_FEATURES
+    context_features: tuple[str, ...] = CONTEXT_FEATURES
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["features"] = list(self.features)
+        d["context_features"] = list(self.context_features)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> NetConfig:
+        d = dict(d)
+        d["features"] = tuple(d.get("features", ()))
+        d["context_features"] = tuple(d.get("context_features", ()))
+        return NetConfig(**d)
