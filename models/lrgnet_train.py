@@ -384,11 +384,6 @@ def split_rooms(family: str, seed: int) -> tuple[list[LabelledCloud], list[Label
     return train_rooms, val_rooms, rng
 
 
-def validation_rooms(family: str, seed: int = 0) -> list[LabelledCloud]:
-    """The rooms of the training buildings that training with `seed` holds back."""
-    return split_rooms(family, seed)[1]
-
-
 _FAMILY_SAMPLES: dict[tuple[str, int], tuple[Samples, Samples, int]] = {}
 
 

@@ -59,10 +59,6 @@ TEMPORAL_WINDOW_S: Final = 0.1
 SPATIAL_WINDOW_M: Final = 0.5
 
 
-def mission_uri(family: str, seed: int, scans: int) -> str:
-    return f"sim://{family}?seed={seed}&sensor={SENSOR}&scans={scans}"
-
-
 def floor_height(world_points: np.ndarray) -> float:
     """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns)."""
     if not len(world_points):

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from aftershock.pipeline.config import ClusterConfig
 from aftershock.pipeline.types import Frame, InstanceMerge
 from aftershock.pipeline.voxel_map import VoxelMap
 
@@ -45,6 +46,16 @@ class InstanceClusterer:
         self.last_grown = np.zeros(0, np.int64)  # scan in which each instance last gained a voxel
         self.next_id = 1  # 0 means "no object"
         self.sums = np.zeros((0, 0), np.float64)  # per instance id: sum of its voxels' embeddings
+
+    @classmethod
+    def from_config(cls, cfg: ClusterConfig, affinity: Affinity, embedding_dim: int) -> InstanceClusterer:
+        """The clusterer for a labeller with `affinity`; the mean-embedding merge and the absorption of stale
+        fragments need embeddings (`embedding_dim` > 0) and are off when `merge_beta` > 1 / `absorb_voxels` <= 1."""
+        merge_beta = cfg.merge_beta if embedding_dim and cfg.merge_beta <= 1 else None
+        absorb = None
+        if merge_beta is not None and cfg.absorb_voxels > 1:
+            absorb = (cfg.absorb_voxels, cfg.absorb_after_scans, cfg.absorb_beta)
+        return cls(affinity, cfg.link_reach_voxels, merge_beta, absorb)
 
     def add(self, vmap: VoxelMap, new_rows: np.ndarray, seq: int) -> list[InstanceMerge]:
         """Give the new rows instance ids, merging instances they bridge; returns the merges."""

@@ -12,14 +12,14 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from sklearn.metrics import adjusted_mutual_info_score, adjusted_rand_score, normalized_mutual_info_score
 
-from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES, UNLABELLED
+from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES
 
 IOU_THRESHOLD: Final = 0.5
 
@@ -49,17 +49,6 @@ class InstanceScores:
     true_instances: int
     predicted_instances: int
     matched: int
-
-
-@dataclass(slots=True)
-class SegmentationScores:
-    semantic: SemanticScores | None
-    clustering: ClusterScores
-    instances: InstanceScores
-    extra: dict[str, float] = field(default_factory=dict)
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 def confusion_matrix(true: np.ndarray, pred: np.ndarray, num_classes: int = NUM_CLASSES) -> np.ndarray:
@@ -152,25 +141,3 @@ def instance_scores(true_ids: np.ndarray, pred_ids: np.ndarray, threshold: float
         predicted_instances=n_pred,
         matched=matched,
     )
-
-
-def segmentation_scores(
-    true_class: np.ndarray | None,
-    pred_class: np.ndarray | None,
-    true_instance: np.ndarray,
-    pred_instance: np.ndarray,
-) -> SegmentationScores:
-    """All of the above at once; semantic scores only when both class arrays are given."""
-    semantic = None
-    if true_class is not None and pred_class is not None:
-        semantic = semantic_scores(true_class, pred_class)
-    return SegmentationScores(
-        semantic=semantic,
-        clustering=cluster_scores(true_instance, pred_instance),
-        instances=instance_scores(true_instance, pred_instance),
-    )
-
-
-def labelled_mask(true_class: np.ndarray) -> np.ndarray:
-    """Points that carry a true class."""
-    return np.asarray(true_class) != UNLABELLED

@@ -189,6 +189,11 @@ class Registrar:
         self._last_stamp_ns: int | None = None
         self._fraction = 0.0
 
+    @classmethod
+    def from_config(cls, cfg: RegisterConfig, environment: Environment) -> Registrar:
+        """KISS-ICP set up for `environment` (unset sizes and ranges take that environment's defaults)."""
+        return cls(cfg, environment)
+
     def register(self, frame: Frame) -> Frame:
         scan = frame.scan
         delta = self.kiss.last_delta.copy()

@@ -3,8 +3,8 @@
     result = run_stream(sources.open(path), cfg, sinks, RunInfo(source=path, source_kind="mcap"))
 
 Stages are generator functions chained lazily, so one frame at a time is in flight. The accumulated map
-goes to the sinks every `cfg.rerun.map_every` scans and once at the end. Sinks always get `close()`, and
-after a Ctrl-C also `end()` with what was processed, so their files stay valid; the result then says
+goes to the sinks every `cfg.rerun.map_every` scans (decided here only) and once at the end. Sinks always
+get `close()`, and after a Ctrl-C also `end()` with what was processed, so their files stay valid; the result then says
 `interrupted` and counts the scans that went through every stage (the one in flight may have reached the
 sinks for its first stages).
 """
@@ -171,12 +171,9 @@ def _run(
     info.environment = environment.value
     info.labeller = labeller.name
 
-    vmap = VoxelMap(cfg.map.voxel_size_m, labeller.embedding_dim)
-    registrar = Registrar(cfg.registration, environment)
-    merge_beta = cfg.cluster.merge_beta if labeller.embedding_dim and cfg.cluster.merge_beta <= 1 else None
-    c = cfg.cluster
-    absorb = (c.absorb_voxels, c.absorb_after_scans, c.absorb_beta) if merge_beta and c.absorb_voxels > 1 else None
-    clusterer = InstanceClusterer(labeller.affinity, c.link_reach_voxels, merge_beta, absorb)
+    vmap = VoxelMap.from_config(cfg.map, labeller.embedding_dim)
+    registrar = Registrar.from_config(cfg.registration, environment)
+    clusterer = InstanceClusterer.from_config(cfg.cluster, labeller.affinity, labeller.embedding_dim)
     all_scans = (s for part in (skipped, [first], it) for s in part)
 
     frames: Iterator[Frame] = _tap(_timed_source(all_scans), sinks, Stage.RAW)
@@ -190,7 +187,7 @@ def _run(
     poses: list[np.ndarray] = []
     true_poses: list[np.ndarray | None] = []
     timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
-    map_every = max(1, cfg.rerun.map_every)
+    map_every = max(1, cfg.rerun.map_every)  # the one place that decides how often the map is re-sent
     last_map_seq: int | None = None
     try:
         for sink in sinks:

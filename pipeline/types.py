@@ -10,13 +10,10 @@ Conventions (fixed, relied on everywhere):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Final
 
 import numpy as np
 
 from aftershock.pipeline.classes import UNLABELLED
-
-IDENTITY: Final[np.ndarray] = np.eye(4)
 
 
 def _check_len(name: str, arr: np.ndarray | None, n: int) -> None:

@@ -14,6 +14,7 @@ from typing import Final
 import numpy as np
 
 from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.config import MapConfig
 from aftershock.pipeline.types import LabelledCloud
 
 _BITS: Final = 21  # per axis: ±2^20 voxels, about ±105 km at 0.1 m
@@ -200,6 +201,11 @@ class VoxelMap:
         self._data: dict[str, np.ndarray] = {}
         self._allocate(_MIN_ROWS)
         self._cells: dict[float, _CellIndex] = {}
+
+    @classmethod
+    def from_config(cls, cfg: MapConfig, embedding_dim: int = 0) -> VoxelMap:
+        """The run's map at `cfg.voxel_size_m`, holding embeddings of `embedding_dim` (0 = none) per voxel."""
+        return cls(cfg.voxel_size_m, embedding_dim)
 
     def _allocate(self, rows: int) -> None:
         for name, dtype, width, fill in self._FIELDS:

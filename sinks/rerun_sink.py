@@ -9,8 +9,9 @@ Timelines
 
 Entities (`world/` is the site, z up, with the class table as a static annotation context)
 - `world/map/x{i}y{j}`: the accumulated labelled map (`class_ids`, `instance_id`), voxel-downsampled to
-  `cfg.map_voxel_m` and cut into square tiles of `cfg.map_tile_m`; every `cfg.map_every` scans only the tiles
-  that changed are re-logged, so a long mission stays light in the file and fluid in the viewer.
+  `cfg.map_voxel_m` and cut into square tiles of `cfg.map_tile_m`; at each map update (the stream sends one
+  every `map_every` scans) only the tiles that changed are re-logged, so a long mission stays light in the file
+  and fluid in the viewer.
 - `world/trajectory/p{k}`: the estimated trajectory as line strips of up to `TRAJECTORY_PIECE` poses; only the
   newest piece is re-logged per scan.
 - `world/robot`: the pose (Transform3D, world <- sensor); `world/robot/raw` the raw scan in the sensor frame.
@@ -216,7 +217,6 @@ class RerunSink(Sink):
         self._stats_seq: int | None = None
         self._trajectory: list[np.ndarray] = []
         self._piece = 0
-        self._last_map_seq: int | None = None
         self._tiles: dict[str, tuple[int, int]] = {}
         self._map_bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._embedding_colors = EmbeddingColors()
@@ -265,12 +265,9 @@ class RerunSink(Sink):
 
     def map_update(self, cloud: LabelledCloud, seq: int) -> None:
         self._start()
-        if self._last_map_seq is not None and seq - self._last_map_seq < self.cfg.map_every:
-            return
         if self._scan is None or self._scan.seq != seq:
             self.rec.set_time(L.SCAN_TIMELINE, sequence=seq)
         self._log_map(cloud)
-        self._last_map_seq = seq
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         self._start()

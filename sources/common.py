@@ -11,7 +11,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final
+from typing import Final
 
 import numpy as np
 
@@ -265,11 +265,3 @@ def _decode(ev: CloudMessage, path: str | Path) -> Scan | None:
         raise InputError(
             f"{ev.topic}: cannot decode the point cloud logged at {ev.log_time_ns} ns: {exc}", path
         ) from None
-
-
-def message_attr(msg: Any, *names: str, default: Any = None) -> Any:
-    """The first attribute of `msg` that exists among `names`."""
-    for n in names:
-        if hasattr(msg, n):
-            return getattr(msg, n)
-    return default

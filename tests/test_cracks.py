@@ -262,7 +262,6 @@ def test_cracks_command_on_real_elements(
     assert all(c["width_m"] <= max(c["rectangle_width_m"], out["spacing_m"]) + 1e-4 for c in out["cracks"])
     assert {"study_width_error_m", "median_width_error_m", "error_definition", "true_crack_matches"} <= set(out)
     assert out["found_true_cracks"] >= 1
-    assert out["timings_s"]["features"] + out["timings_s"]["detect"] < 10
 
 
 def test_mask_of_the_wrong_length_is_an_error(

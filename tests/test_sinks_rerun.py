@@ -30,7 +30,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _run(path: Path, log: Path, *, source_kind: str = "mcap", repeat: int = 1, **cfg: object) -> list:
-    sink = RerunSink(path, False, None, RerunConfig(**cfg))
+    rerun_cfg = RerunConfig(**cfg)
+    sink = RerunSink(path, False, None, rerun_cfg)
     sink.begin(RunInfo(source=str(log), source_kind=source_kind, topic="/velodyne_points", labeller="rule"))
     done = []
     try:
@@ -38,7 +39,8 @@ def _run(path: Path, log: Path, *, source_kind: str = "mcap", repeat: int = 1, *
             for stage in Stage:
                 sink.stage(frame, stage)
             done.append(frame)
-            sink.map_update(map_of(done), frame.seq)
+            if len(done) % rerun_cfg.map_every == 0:  # as the stream does
+                sink.map_update(map_of(done), frame.seq)
         sink.end(RunSummary(scans=len(done)), map_of(done))
     finally:
         sink.close()

@@ -17,7 +17,6 @@ from aftershock.pipeline.geometry import pca_normals, threshold_region_growing, 
 from aftershock.pipeline.types import LabelledCloud
 
 COLUMN_DIMS_M: Final = (0.4, 0.4, 2.6)  # the study's columns
-SLAB_DIMS_M: Final = (5.0, 3.0, 0.5)
 
 
 def in_box(points: np.ndarray, box: np.ndarray) -> np.ndarray:

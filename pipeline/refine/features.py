@@ -19,7 +19,6 @@ from aftershock.pipeline.types import LabelledCloud
 
 NUM_FEATURES: Final = 13
 LOCAL_XY: Final = slice(0, 2)
-ROOM: Final = slice(3, 6)
 NORMALISED: Final = slice(6, 13)  # colour, normal, curvature: minus the region's median per step
 NORMAL: Final = slice(9, 12)
 
