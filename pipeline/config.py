@@ -85,11 +85,21 @@ class ClusterConfig(_Section):
 
 
 class RerunConfig(_Section):
-    map_voxel_m: float = 0.1  # the accumulated map shown in the viewer is downsampled to this
+    # The accumulated map shown in the viewer, and each scan's labelled layer, are downsampled to this (the
+    # voxel map's own resolution by default: one point per labelled voxel).
+    map_voxel_m: float = 0.1
     map_every: int = 10  # re-log the accumulated map every N scans
-    map_tile_m: float = 20.0  # the map is logged in square tiles of this size; only changed tiles are re-logged
+    # The map is logged in square tiles of this size and only changed tiles are re-logged (a tile whose
+    # points stayed and only labels changed gets its labels alone): small tiles keep a long mission light.
+    map_tile_m: float = 4.0
+    # Raw scans go into the recording only where the log cannot be opened beside it (ROS 1, files, sim://),
+    # downsampled to this; 0 keeps them at full resolution.
+    raw_voxel_m: float = 0.2
     raw_points: bool = True
-    embeddings: bool = True
+    # Full-resolution per-stage layers of every scan (registered, labelled, instances, embedding): for
+    # debugging a scan, about 15x the size of a recording without them.
+    debug_layers: bool = False
+    embeddings: bool = True  # with debug_layers: the MCPNet embedding layer too
 
 
 class LRGNetConfig(_Section):

@@ -203,6 +203,10 @@ class RunInfo:
     environment: str = "indoor"
     labeller: str = ""
     log_start_ns: int | None = None
+    # The viewer opens the log itself (MCAP with ROS 2 or Foxglove point clouds): the recording leaves raw
+    # scans out and links the log's sensor frame to the estimated pose instead.
+    raw_in_log: bool = False
+    log_id: str = ""  # fingerprint of the log file, so a recording can be matched to its log
 
 
 @dataclass(slots=True)

@@ -1,8 +1,9 @@
 """The Rerun layout (entity paths, timelines) and the default blueprint: the site in 3D, with the per-stage
 time series and the text log beside it.
 
-Layers that repeat the current scan (raw, registered, instances, embedding) start hidden so the labelled
-scan reads clearly over the map; each can be switched on in the viewer's blueprint panel.
+Layers that repeat the current scan (raw, the log's own clouds, and the full-resolution debug layers) start
+hidden so the labelled scan reads clearly over the map; each can be switched on in the viewer's blueprint
+panel.
 See `sinks.rerun_sink` for what each entity holds.
 """
 
@@ -25,8 +26,10 @@ MAP: Final = "world/map"
 TRAJECTORY: Final = "world/trajectory"
 ROBOT: Final = "world/robot"
 RAW: Final = "world/robot/raw"
+LOG_FRAME: Final = "world/robot/log_frame"
 REGISTERED: Final = "world/scan/registered"
 LABELS: Final = "world/scan/labels"
+LABELLED: Final = "world/scan/labelled"
 INSTANCES: Final = "world/scan/instances"
 EMBEDDING: Final = "world/scan/embedding"
 REFINED: Final = "world/refined"
@@ -42,19 +45,29 @@ LOG: Final = "log"
 HIDDEN_BY_DEFAULT: Final[tuple[str, ...]] = (
     RAW,
     REGISTERED,
+    LABELLED,
     INSTANCES,
     EMBEDDING,
 )
 
 
-def default_blueprint(timeline: str = SCAN_TIMELINE) -> rrb.Blueprint:
-    """The 3D view of `world/` (three quarters of the width) beside time per stage, counts and the log."""
+def default_blueprint(timeline: str = SCAN_TIMELINE, log_topic: str | None = None) -> rrb.Blueprint:
+    """The 3D view of `world/` (three quarters of the width) beside time per stage, counts and the log.
+    With `log_topic`, the view also holds the log's own clouds of that topic (as Rerun's MCAP import names
+    the entity), hidden at first."""
+    hidden = list(HIDDEN_BY_DEFAULT)
+    contents = ["$origin/**"]
+    if log_topic:
+        topic = "/" + log_topic.lstrip("/")
+        contents.append(f"{topic}/**")
+        hidden.append(topic)
     site = rrb.Spatial3DView(
         origin=WORLD,
         name="site",
+        contents=contents,
         background=[18, 18, 22],
         line_grid=rrb.LineGrid3D(visible=True, spacing=1.0, color=[80, 80, 80, 90]),
-        overrides={path: rrb.EntityBehavior(visible=False) for path in HIDDEN_BY_DEFAULT},
+        overrides={path: rrb.EntityBehavior(visible=False) for path in hidden},
     )
     side = rrb.Vertical(
         rrb.TimeSeriesView(origin=STATS_TIME, name="time per stage (ms)", plot_legend=rrb.Corner2D.LeftTop),

@@ -7,17 +7,27 @@ Timelines
   so the recording and the imported log line up when opened together.
 - `lrgnet_step`: one object's growth, step by step (only the `world/refined/growth` layer lives on it).
 
+A recording holds what the log does not. When the viewer opens the log itself (MCAP with ROS 2 or
+Foxglove point clouds, `RunInfo.raw_in_log`), raw scans are left out: the log's sensor frame (the scans'
+`frame_id`, which Rerun's MCAP import puts on the topic's entity) is tied to `world/robot`, so the log's
+own clouds appear at the estimated pose, and the recording id carries the log's fingerprint
+(`recording_id_for`) so `aftershock view` can open both as one recording.
+
 Entities (`world/` is the site, z up, with the class table as a static annotation context)
 - `world/map/x{i}y{j}`: the accumulated labelled map (`class_ids`, `instance_id`), voxel-downsampled to
   `cfg.map_voxel_m` and cut into square tiles of `cfg.map_tile_m`; at each map update (the stream sends one
-  every `map_every` scans) only the tiles that changed are re-logged, so a long mission stays light in the file
-  and fluid in the viewer.
+  every `map_every` scans) only the tiles that changed are re-logged (only their labels when their points
+  stayed), so a long mission stays light in the file and fluid in the viewer.
 - `world/trajectory/p{k}`: the estimated trajectory as line strips of up to `TRAJECTORY_PIECE` poses; only the
   newest piece is re-logged per scan.
-- `world/robot`: the pose (Transform3D, world <- sensor); `world/robot/raw` the raw scan in the sensor frame.
-- `world/scan/registered`: the deskewed scan in the world frame; `world/scan/labels` the points kept for
-  labelling with their `class_ids`; `world/scan/instances` the same points in instance colours with `class_ids`
-  and an `instance_id` component; `world/scan/embedding` MCPNet embeddings as colours (when present).
+- `world/robot`: the pose (Transform3D, world <- sensor); `world/robot/raw` the raw scan in the sensor frame,
+  downsampled to `cfg.raw_voxel_m`, only when the log cannot be opened beside the recording;
+  `world/robot/log_frame` ties the log's sensor frame to the pose when it can.
+- `world/scan/labels`: per scan, the points kept for labelling, one per voxel of `cfg.map_voxel_m`, with their
+  `class_ids` and an `instance_id` component (positions once, both labels beside them).
+- With `cfg.debug_layers` only, at full resolution: `world/scan/registered` (the deskewed scan in the world
+  frame), `world/scan/labelled` (every kept point with its class), `world/scan/instances` (instance colours,
+  `class_ids`, `instance_id`) and `world/scan/embedding` (MCPNet embeddings as colours).
 - `world/refined` (+ `growth/inliers`, `growth/neighbours`): LRGNet's segmentation and one object's growth.
 - `world/damage/crack_points`, `world/damage/cracks` (boxes labelled with length and width),
   `world/damage/stories/s{i}` (story planes), `world/damage/drift` (drift arrows, exaggerated, labelled in mm).
@@ -29,6 +39,7 @@ from __future__ import annotations
 
 import socket
 import sys
+import uuid
 from pathlib import Path
 from typing import Any, Final
 from urllib.parse import urlsplit
@@ -51,6 +62,7 @@ SPAWN_PORT: Final = 9876
 BATCH_SECONDS: Final = 1.0
 BATCH_BYTES: Final = 16 * 2**20
 FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
+RECORDING_ID_PREFIX: Final = "aftershock-"
 
 SCAN_RADIUS: Final = rr.Radius.ui_points(1.5)
 MAP_RADIUS_OF_VOXEL: Final = 0.2  # map points drawn with a world-space radius of this fraction of the voxel
@@ -116,6 +128,20 @@ class EmbeddingColors:
         self.axes = axes
         spread = ((e - self.mean) @ axes).std(axis=0) if len(e) >= 2 else np.ones(3)
         self.scale = np.maximum(2.0 * spread, 1e-6)
+
+
+def recording_id_for(log_id: str) -> str:
+    """A fresh recording id that names the log it was made from (`view` checks it): aftershock-<log>-<run>."""
+    run = uuid.uuid4().hex[:12]
+    return f"{RECORDING_ID_PREFIX}{log_id}-{run}" if log_id else f"{RECORDING_ID_PREFIX}{run}"
+
+
+def log_id_of(recording_id: str) -> str | None:
+    """The log fingerprint a recording id carries (None for recordings of inputs without one)."""
+    if not recording_id.startswith(RECORDING_ID_PREFIX):
+        return None
+    parts = recording_id[len(RECORDING_ID_PREFIX) :].split("-")
+    return parts[0] if len(parts) == 2 else None
 
 
 def _listening(url: str, timeout_s: float = 2.0) -> bool:
@@ -206,10 +232,11 @@ class RerunSink(Sink):
                 raise OutputError("no Rerun viewer is listening there (start one with `rerun`)", connect)
         # Larger, rarer chunks than the default (200 ms, 2 MiB): the file's footer keeps ~0.4 kB per chunk in
         # memory until the end, so fewer chunks keep a long mission's memory flat; live viewers lag <= 1 s.
-        batcher = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
-        self.rec = rr.RecordingStream(application_id, batcher_config=batcher)
-        rr.set_log_time_enabled(False, recording=self.rec)  # wall-clock time of logging says nothing here
+        self._batcher = rr.ChunkBatcherConfig(flush_tick=BATCH_SECONDS, flush_num_bytes=BATCH_BYTES)
+        self._application_id = application_id
+        self.rec = self._new_stream("")
         self._closed = False
+        self._info = RunInfo(source="", source_kind="")
         self._started = False
         self._mcap_times = False
         self._scan: Scan | None = None  # the scan whose times are currently set
@@ -217,13 +244,28 @@ class RerunSink(Sink):
         self._stats_seq: int | None = None
         self._trajectory: list[np.ndarray] = []
         self._piece = 0
-        self._tiles: dict[str, tuple[int, int]] = {}
+        self._tiles: dict[str, tuple[int, int, int]] = {}  # tile -> (points, position hash, label hash)
         self._map_bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._embedding_colors = EmbeddingColors()
 
     # ------------------------------------------------------------------------------------------ hooks
 
+    def _new_stream(self, log_id: str) -> rr.RecordingStream:
+        rec = rr.RecordingStream(
+            self._application_id, recording_id=recording_id_for(log_id), batcher_config=self._batcher
+        )
+        rr.set_log_time_enabled(False, recording=rec)  # wall-clock time of logging says nothing here
+        return rec
+
+    @property
+    def raw_in_recording(self) -> bool:
+        """Raw scans go into the recording unless the viewer can open the log beside it."""
+        return self.cfg.raw_points and not self._info.raw_in_log
+
     def begin(self, info: RunInfo) -> None:
+        if not self._started and info.log_id:
+            self.rec = self._new_stream(info.log_id)
+        self._info = info
         self._start()
         self._mcap_times = info.source_kind == "mcap"
         self.rec.send_recording_name(Path(info.source).name or info.source)
@@ -247,7 +289,8 @@ class RerunSink(Sink):
                 executable_path=str(beside) if beside.exists() else None,
             )
             self._sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
-        self.rec.set_sinks(*self._sinks, default_blueprint=L.default_blueprint())
+        log_topic = self._info.topic if self._info.raw_in_log else None
+        self.rec.set_sinks(*self._sinks, default_blueprint=L.default_blueprint(log_topic=log_topic))
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, annotation_context(), static=True)
 
     def stage(self, frame: Frame, stage: Stage) -> None:
@@ -365,10 +408,15 @@ class RerunSink(Sink):
             self.rec.set_time(L.SENSOR_TIMELINE, timestamp=_datetime(scan.stamp_ns))
 
     def _log_raw(self, frame: Frame) -> None:
-        if not self.cfg.raw_points:
+        if not self.raw_in_recording:
             return
         scan = frame.scan
-        self.rec.log(L.RAW, rr.Points3D(scan.points, colors=_scan_colors(scan), radii=SCAN_RADIUS))
+        colors = _scan_colors(scan)
+        pts = scan.points
+        if self.cfg.raw_voxel_m > 0 and len(pts):
+            keep, _ = voxel_downsample(pts, self.cfg.raw_voxel_m)
+            pts, colors = pts[keep], colors[keep] if colors is not None else None
+        self.rec.log(L.RAW, rr.Points3D(pts, colors=colors, radii=SCAN_RADIUS))
 
     def _log_registered(self, frame: Frame) -> None:
         if frame.pose is None:
@@ -376,10 +424,15 @@ class RerunSink(Sink):
         pose = frame.pose
         if not self._trajectory and self._piece == 0:  # the robot's axes appear with its first pose
             self.rec.log(L.ROBOT, rr.TransformAxes3D(0.5), static=True)
+            if self._info.raw_in_log and frame.scan.frame_id:
+                # The log's clouds (on the topic's entity, in their frame_id) follow the estimated pose.
+                link = rr.Transform3D(child_frame=frame.scan.frame_id, parent_frame=f"tf#/{L.ROBOT}")
+                self.rec.log(L.LOG_FRAME, link, static=True)
         self.rec.log(L.ROBOT, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
-        self.rec.log(
-            L.REGISTERED, rr.Points3D(_world_points(frame), colors=_scan_colors(frame.scan), radii=SCAN_RADIUS)
-        )
+        if self.cfg.debug_layers:
+            self.rec.log(
+                L.REGISTERED, rr.Points3D(_world_points(frame), colors=_scan_colors(frame.scan), radii=SCAN_RADIUS)
+            )
         self._trajectory.append(pose[:3, 3].copy())
         self.rec.log(
             f"{L.TRAJECTORY}/p{self._piece}",
@@ -398,10 +451,10 @@ class RerunSink(Sink):
         return _world_points(frame)[idx], idx
 
     def _log_labelled(self, frame: Frame) -> None:
-        if frame.labels is None:
+        if frame.labels is None or not self.cfg.debug_layers:
             return
         pts, idx = self._labelled_subset(frame)
-        self.rec.log(L.LABELS, rr.Points3D(pts, class_ids=frame.labels.class_ids[idx], radii=SCAN_RADIUS))
+        self.rec.log(L.LABELLED, rr.Points3D(pts, class_ids=frame.labels.class_ids[idx], radii=SCAN_RADIUS))
         if self.cfg.embeddings and frame.labels.embeddings is not None:
             colors = self._embedding_colors(frame.labels.embeddings[idx])
             self.rec.log(L.EMBEDDING, rr.Points3D(pts, colors=colors, radii=SCAN_RADIUS))
@@ -411,9 +464,20 @@ class RerunSink(Sink):
             return
         pts, idx = self._labelled_subset(frame)
         inst = frame.labels.instance_ids[idx]
+        cls = frame.labels.class_ids[idx]
+        if self.cfg.debug_layers:
+            self.rec.log(
+                L.INSTANCES,
+                rr.Points3D(pts, colors=_instance_colors(inst), class_ids=cls, radii=SCAN_RADIUS),
+                rr.AnyValues(instance_id=inst),
+            )
+        # The default layer: one point per voxel, positions once, class and instance beside them.
+        if len(pts):
+            keep, _ = voxel_downsample(pts, self.cfg.map_voxel_m)
+            pts, cls, inst = pts[keep].astype(np.float32), cls[keep], inst[keep]
         self.rec.log(
-            L.INSTANCES,
-            rr.Points3D(pts, colors=_instance_colors(inst), class_ids=frame.labels.class_ids[idx], radii=SCAN_RADIUS),
+            L.LABELS,
+            rr.Points3D(pts, class_ids=cls, radii=MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m * 1.5),
             rr.AnyValues(instance_id=inst),
         )
         for m in frame.merges:
@@ -454,21 +518,28 @@ class RerunSink(Sink):
         starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
         counts = np.diff(np.r_[starts, n])
         tiles = cell[order[starts]]
-        hashes = np.add.reduceat(_content_hash(pts, cls, inst)[order], starts)
+        zeros = np.zeros(n, np.uint16)
+        where_hash = np.add.reduceat(_content_hash(pts, zeros, zeros.astype(np.uint32))[order], starts)
+        label_hash = np.add.reduceat(_content_hash(pts, cls, inst)[order], starts)
         radius = MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m
         seen: set[str] = set()
         for t, (ix, iy) in enumerate(tiles):
             name = f"{L.MAP}/{_tile_name(int(ix), int(iy))}"
             seen.add(name)
-            signature = (int(counts[t]), int(hashes[t]))
-            if self._tiles.get(name) == signature:
+            signature = (int(counts[t]), int(where_hash[t]), int(label_hash[t]))
+            before = self._tiles.get(name)
+            if before == signature:
                 continue
             self._tiles[name] = signature
             sel = order[starts[t] : starts[t] + counts[t]]
+            if before is not None and before[:2] == signature[:2] and colors is None:
+                # Same points in the same order (map rows only append): only the labels are new.
+                self.rec.log(name, rr.Points3D.from_fields(class_ids=cls[sel]), rr.AnyValues(instance_id=inst[sel]))
+                continue
             self.rec.log(
                 name,
                 rr.Points3D(
-                    pts[sel],
+                    pts[sel].astype(np.float32),
                     class_ids=cls[sel] if colors is None else None,
                     colors=colors[sel] if colors is not None else None,
                     radii=radius,

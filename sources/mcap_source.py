@@ -7,6 +7,7 @@ stream up to the damage: every complete message before it is used, then a `Damag
 
 from __future__ import annotations
 
+import hashlib
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -82,6 +83,32 @@ class TopicInfo:
     type: str  # schema name, e.g. sensor_msgs/msg/PointCloud2
     count: int = 0
     encoding: str = ""  # message encoding: cdr, ros1, protobuf
+
+
+# (message encoding, schema) pairs of point clouds Rerun's own MCAP import decodes (ROS 2 CDR, Foxglove protobuf).
+VIEWER_CLOUDS: Final[frozenset[tuple[str, str]]] = frozenset(
+    {("cdr", "sensor_msgs/msg/PointCloud2"), ("protobuf", "foxglove.PointCloud")}
+)
+_FINGERPRINT_BYTES: Final = 1 << 16
+
+
+def viewer_reads(topic: TopicInfo) -> bool:
+    """Whether the Rerun viewer shows this topic's point clouds when it opens the MCAP itself."""
+    return (topic.encoding, topic.type) in VIEWER_CLOUDS
+
+
+def fingerprint(path: Path) -> str:
+    """A short id of a log file from its size, head and tail (the MCAP summary lives there): cheap on a
+    gigabyte log, and a recording made from another log will not carry it."""
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        size = fh.seek(0, 2)
+        h.update(size.to_bytes(8, "little"))
+        fh.seek(0)
+        h.update(fh.read(_FINGERPRINT_BYTES))
+        fh.seek(max(0, size - _FINGERPRINT_BYTES))
+        h.update(fh.read(_FINGERPRINT_BYTES))
+    return h.hexdigest()[:16]
 
 
 @dataclass(slots=True)

@@ -21,18 +21,24 @@ from sinks_data import VELODYNE, frames, map_of
 from aftershock.pipeline.classes import UNLABELLED
 from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.geometry import voxel_downsample
 from aftershock.pipeline.sink import Stage
 from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Story
 from aftershock.sinks import rerun_blueprint as L
-from aftershock.sinks.rerun_sink import EmbeddingColors, RerunSink
+from aftershock.sinks.rerun_sink import EmbeddingColors, RerunSink, log_id_of
+from aftershock.sources.mcap_source import fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _run(path: Path, log: Path, *, source_kind: str = "mcap", repeat: int = 1, **cfg: object) -> list:
+def _run(
+    path: Path, log: Path, *, source_kind: str = "mcap", raw_in_log: bool = False, repeat: int = 1, **cfg: object
+) -> list:
     rerun_cfg = RerunConfig(**cfg)
     sink = RerunSink(path, False, None, rerun_cfg)
-    sink.begin(RunInfo(source=str(log), source_kind=source_kind, topic="/velodyne_points", labeller="rule"))
+    log_id = fingerprint(log) if source_kind == "mcap" else ""
+    info = RunInfo(str(log), source_kind, "/velodyne_points", labeller="rule", raw_in_log=raw_in_log, log_id=log_id)
+    sink.begin(info)
     done = []
     try:
         for frame in frames(log, repeat):
@@ -55,25 +61,33 @@ def velodyne(lidar_dir: Path) -> Path:
 @pytest.fixture(scope="module")
 def recorded(velodyne: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list]:
     path = tmp_path_factory.mktemp("rrd") / "run.rrd"
-    done = _run(path, velodyne, map_every=2)
+    done = _run(path, velodyne, raw_in_log=True, map_every=2)
     return path, done
 
 
-def test_recording_has_the_layout(recorded: tuple[Path, list]) -> None:
+DEBUG_LAYERS = (L.REGISTERED, L.LABELLED, L.INSTANCES, L.EMBEDDING)
+
+
+def test_recording_has_the_layout(recorded: tuple[Path, list], velodyne: Path) -> None:
     path, done = recorded
     rec = read_rrd(path)
     assert rec.application_id == "aftershock"
+    assert log_id_of(rec.recording_id) == fingerprint(velodyne)  # `view` pairs it with its log
     assert rec.blueprints == 1  # the default blueprint travels with the file
-    for entity in (L.WORLD, L.ROBOT, L.RAW, L.REGISTERED, L.LABELS, L.INSTANCES, L.EMBEDDING, f"{L.TRAJECTORY}/p0"):
+    for entity in (L.WORLD, L.ROBOT, L.LABELS, f"{L.TRAJECTORY}/p0"):
         assert entity in rec.entities, entity
+    # the viewer opens this log itself: no raw scans, no full-resolution layers unless asked for
+    assert not rec.entities & {L.RAW, *DEBUG_LAYERS}
     assert rec.under(L.MAP), "no map tiles"
     assert {"stats/time_ms/register", "stats/time_ms/label", "stats/counts/kept", "log/merges"} <= rec.entities
     assert "AnnotationContext:context" in rec.components(L.WORLD)
-    assert "instance_id" in rec.components(L.INSTANCES)
+    assert {"Points3D:positions", "Points3D:class_ids", "instance_id"} <= rec.components(L.LABELS)
+    # the log's sensor frame hangs off the estimated pose, so its clouds appear where the robot was
+    assert rec.rows(L.LOG_FRAME, "Transform3D:child_frame", static=True) == [[done[0].scan.frame_id]]
+    assert rec.rows(L.LOG_FRAME, "Transform3D:parent_frame", static=True) == [[f"tf#/{L.ROBOT}"]]
     # every scan logged once per layer, on the scan timeline
     seqs = [f.seq for f in done]
-    layers = ((L.LABELS, "Points3D:class_ids"), (L.RAW, "Points3D:positions"), (L.ROBOT, "Transform3D:translation"))
-    for entity, component in layers:
+    for entity, component in ((L.LABELS, "Points3D:class_ids"), (L.ROBOT, "Transform3D:translation")):
         assert rec.times(entity, component, L.SCAN_TIMELINE).tolist() == seqs, entity
     assert len(rec.rows("stats/time_ms/register", "Scalars:scalars")) == len(done)
 
@@ -81,16 +95,25 @@ def test_recording_has_the_layout(recorded: tuple[Path, list]) -> None:
 def test_recording_holds_what_went_in(recorded: tuple[Path, list]) -> None:
     path, done = recorded
     rec = read_rrd(path)
-    sent = np.concatenate([f.labels.class_ids[f.keep] for f in done])
+    # one point per 10 cm voxel of the points kept for labelling, with that point's class and instance
+    want_cls, want_inst, want_pts = [], [], []
+    for f in done:
+        kept = np.flatnonzero(f.keep)
+        first, _ = voxel_downsample(f.world_points[kept], 0.1)
+        want_cls.append(f.labels.class_ids[kept[first]])
+        want_inst.append(f.labels.instance_ids[kept[first]])
+        want_pts.append(f.world_points[kept[first]])
     got = rec.values(L.LABELS, "Points3D:class_ids")
-    assert len(got) == len(sent) and set(np.unique(got)) == set(np.unique(sent))
+    assert np.array_equal(got, np.concatenate(want_cls))
     assert UNLABELLED not in set(np.unique(got))  # only the points kept for labelling are shown
-    inst = rec.values(L.INSTANCES, "instance_id")
-    assert np.array_equal(inst, np.concatenate([f.labels.instance_ids[f.keep] for f in done]))
+    assert np.array_equal(rec.values(L.LABELS, "instance_id"), np.concatenate(want_inst))
+    pts = np.concatenate([np.asarray(r) for r in rec.rows(L.LABELS, "Points3D:positions")])
+    assert np.allclose(pts, np.concatenate(want_pts), atol=1e-5)
+    assert sum(len(c) for c in want_cls) < sum(int(f.keep.sum()) for f in done) / 2  # far fewer than kept
     positions = np.asarray(rec.rows(L.ROBOT, "Transform3D:translation"))
     assert np.allclose(positions.reshape(len(done), 3), [f.pose[:3, 3] for f in done])
     map_classes = np.concatenate([rec.values(e, "Points3D:class_ids") for e in rec.under(L.MAP)])
-    assert set(np.unique(map_classes)) <= set(np.unique(sent))
+    assert set(np.unique(map_classes)) <= set(np.unique(np.concatenate([f.labels.class_ids[f.keep] for f in done])))
     assert rec.texts("log/summary")[0].startswith(f"{len(done)} scans")
     assert rrd_verify(path).returncode == 0
     assert len(RrdReader(path).store()) > 0  # the footer was written on close
@@ -109,6 +132,39 @@ def test_timelines_line_up_with_rerun_mcap_import(recorded: tuple[Path, list], v
     assert imported[L.MCAP_LOG_TIMELINE], "Rerun's MCAP import has no message_log_time"
     for name, times in imported.items():
         assert set(rec.times(L.LABELS, "Points3D:class_ids", name).tolist()) == times, name
+
+
+def test_recordings_are_compact(recorded: tuple[Path, list], velodyne: Path, tmp_path: Path) -> None:
+    """At the defaults a VLP-16 scan costs at most 100 KB of recording (the issue's budget); the debug layers
+    hold every point of every stage."""
+    path, done = recorded
+    per_scan = path.stat().st_size / len(done)
+    debug = tmp_path / "debug.rrd"
+    _run(debug, velodyne, raw_in_log=True, map_every=2, debug_layers=True)
+    debug_kb = debug.stat().st_size / len(done) / 1e3
+    print(f"\nrecording per VLP-16 scan: {per_scan / 1e3:.0f} kB, with debug layers {debug_kb:.0f} kB")
+    assert per_scan <= 100_000
+    rec = read_rrd(debug)
+    for entity in DEBUG_LAYERS:
+        assert rec.times(entity, "Points3D:positions", L.SCAN_TIMELINE).tolist() == [f.seq for f in done], entity
+    labelled = rec.values(L.LABELLED, "Points3D:class_ids")
+    assert np.array_equal(labelled, np.concatenate([f.labels.class_ids[f.keep] for f in done]))
+    inst = rec.values(L.INSTANCES, "instance_id")
+    assert np.array_equal(inst, np.concatenate([f.labels.instance_ids[f.keep] for f in done]))
+    assert debug.stat().st_size > 5 * path.stat().st_size
+
+
+def test_raw_scans_stay_downsampled_when_the_viewer_cannot_open_the_log(velodyne: Path, tmp_path: Path) -> None:
+    path = tmp_path / "ros1.rrd"
+    done = _run(path, velodyne, source_kind="bag", raw_in_log=False)  # as from a ROS 1 bag
+    rec = read_rrd(path)
+    assert rec.times(L.RAW, "Points3D:positions", L.SCAN_TIMELINE).tolist() == [f.seq for f in done]
+    assert L.LOG_FRAME not in rec.entities and log_id_of(rec.recording_id) is None
+    for f, raw in zip(done, rec.rows(L.RAW, "Points3D:positions"), strict=True):
+        raw = np.asarray(raw, dtype=np.float64)
+        assert len(np.unique(np.floor(raw / 0.2), axis=0)) == len(raw) < len(f.scan) / 4  # one per 20 cm voxel
+        first, _ = voxel_downsample(f.scan.points, 0.2)
+        assert np.allclose(raw, f.scan.points[first], atol=1e-5)  # real points of the scan, not voxel centres
 
 
 def test_other_sources_use_sensor_time(velodyne: Path, tmp_path: Path) -> None:
@@ -137,8 +193,12 @@ def test_map_relogs_only_changed_tiles(tmp_path: Path) -> None:
     sink.close()
     rec = read_rrd(path)
     assert rec.under(L.MAP) == {f"{L.MAP}/x0y0", f"{L.MAP}/xm1y0"}
-    assert rec.times(f"{L.MAP}/x0y0", "Points3D:positions", L.SCAN_TIMELINE).tolist() == [0, 2]
+    # the relabelled tile gets its labels again, not its points; the other tile nothing
+    assert rec.times(f"{L.MAP}/x0y0", "Points3D:positions", L.SCAN_TIMELINE).tolist() == [0]
+    assert rec.times(f"{L.MAP}/x0y0", "Points3D:class_ids", L.SCAN_TIMELINE).tolist() == [0, 2]
+    assert rec.rows(f"{L.MAP}/x0y0", "Points3D:class_ids")[-1].count(4) == 10
     assert rec.times(f"{L.MAP}/xm1y0", "Points3D:positions", L.SCAN_TIMELINE).tolist() == [0]
+    assert rec.times(f"{L.MAP}/xm1y0", "Points3D:class_ids", L.SCAN_TIMELINE).tolist() == [0]
     # downsampled to the map voxel: at most one point per 10 cm voxel
     pts = np.asarray(rec.rows(f"{L.MAP}/x0y0", "Points3D:positions")[0])
     assert len(np.unique(np.floor(pts / 0.1), axis=0)) == len(pts)

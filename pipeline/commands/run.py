@@ -80,7 +80,14 @@ def open_scans(source: str, cfg: Config, quiet: bool) -> tuple[Iterator[Scan], R
         every=cfg.source.every,
         progress=enabled(quiet),
     )
-    info = RunInfo(source=source, source_kind=desc.kind.value, topic=desc.topic, log_start_ns=desc.log_start_ns)
+    info = RunInfo(
+        source=source,
+        source_kind=desc.kind.value,
+        topic=desc.topic,
+        log_start_ns=desc.log_start_ns,
+        raw_in_log=desc.viewer_reads,
+        log_id=desc.log_id,
+    )
     return scans, info
 
 
