@@ -59,15 +59,32 @@ class MCPNet(nn.Module):
             pooled = pooled * mask.any(dim=1, keepdim=True).to(pooled.dtype)
         return pooled
 
+    def pool_pairs(self, pairs: torch.Tensor, owner: torch.Tensor, num_points: int) -> torch.Tensor:
+        """The context vectors (B, W) of `num_points` points from (point, neighbour) pairs: `pairs` (P, Fc)
+        differences to the point, `owner` (P,) the point each pair belongs to (points without a pair get 0).
+
+        The max over draws is the max over the distinct neighbours drawn, so giving each neighbour once
+        yields `pool_context` of the draws with repeats, at the cost of the distinct ones only."""
+        lin1, relu1, lin2 = self.context_mlp[0], self.context_mlp[1], self.context_mlp[2]
+        h = lin2(relu1(lin1(pairs)))
+        pooled = torch.full((num_points, h.shape[1]), -torch.inf, dtype=h.dtype)
+        pooled.scatter_reduce_(0, owner.unsqueeze(1).expand_as(h), h, reduce="amax", include_self=True)
+        return torch.relu(pooled)  # relu(-inf) = 0 for points without context, as in `pool_context`
+
     def forward(
         self, point: torch.Tensor, context: torch.Tensor | None = None, mask: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """point (B, Fp); context (B, M, Fc) differences to the point; mask (B, M) True where a neighbour exists.
         Returns unit embeddings (B, E) and class logits (B, C)."""
-        x = point
+        pooled = None
         if self.use_context:
             assert context is not None
-            x = torch.cat([self.pool_context(context, mask), point], dim=1)
+            pooled = self.pool_context(context, mask)
+        return self.head(point, pooled)
+
+    def head(self, point: torch.Tensor, pooled: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Unit embeddings (B, E) and class logits (B, C) from the point features and pooled context (B, W)."""
+        x = point if pooled is None else torch.cat([pooled, point], dim=1)
         feat = self.point_mlp(x)
         emb = nn.functional.normalize(self.embed(feat), dim=1)
         logits = self.classify(torch.cat([feat, emb], dim=1))

@@ -21,6 +21,7 @@ COMMAND_MODULES: Final[tuple[str, ...]] = (
     "cracks",
     "drift",
     "refine",
+    "view",
 )
 
 app = typer.Typer(

@@ -38,7 +38,6 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
 from __future__ import annotations
 
 import socket
-import sys
 import uuid
 from pathlib import Path
 from typing import Any, Final
@@ -280,15 +279,10 @@ class RerunSink(Sink):
         if self._started:
             return
         self._started = True
-        if self.spawn:
-            beside = Path(sys.executable).with_name("rerun")  # the viewer of this environment, if not on PATH
-            rr.spawn(
-                port=SPAWN_PORT,
-                connect=False,
-                recording=self.rec,
-                executable_path=str(beside) if beside.exists() else None,
-            )
-            self._sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"))
+        if self.spawn:  # a viewer of this environment on 127.0.0.1 (the one already there is reused)
+            from aftershock.sinks.rerun_viewer import start_viewer
+
+            self._sinks.append(rr.GrpcSink(start_viewer(port=SPAWN_PORT).grpc_url))
         log_topic = self._info.topic if self._info.raw_in_log else None
         self.rec.set_sinks(*self._sinks, default_blueprint=L.default_blueprint(log_topic=log_topic))
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, annotation_context(), static=True)

@@ -15,9 +15,11 @@ from aftershock import sources
 from aftershock.models.mcpnet import (
     MCPNet,
     context_draws,
+    context_features,
     default_weights,
     load_model,
     num_parameters,
+    point_features,
     save_weights,
 )
 from aftershock.models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
@@ -25,7 +27,7 @@ from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.classes import NUM_CLASSES, UNLABELLED
 from aftershock.pipeline.config import Config
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller
+from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller, distinct_pairs
 from aftershock.pipeline.stream import run_stream
 from aftershock.pipeline.types import LabelledCloud, RunInfo
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -75,6 +77,34 @@ def test_labeller_predictions_do_not_depend_on_which_rows_are_asked_with() -> No
     cls_few, _score_few, emb_few = labeller.predict(vmap, pick, origin, -1.0, True)
     np.testing.assert_array_equal(cls_few, cls_all[pick])
     np.testing.assert_allclose(emb_few, emb_all[pick], atol=1e-5)
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_distinct_pairs_pool_what_the_draws_pool(color: bool) -> None:
+    """The labeller feeds each distinct neighbour once; the network on all draws (repeats included) gives
+    the same classes and embeddings."""
+    rng = np.random.default_rng(3)
+    vmap = VoxelMap(0.1, 50)
+    pts = np.r_[rng.uniform(-1, 1, (1500, 3)), rng.uniform(5, 5.4, (30, 3))]  # dense and sparse parts
+    vmap.insert(pts, rng.integers(0, 255, (len(pts), 3)).astype(np.uint8))
+    labeller = MCPNetLabeller(Config())
+    rows = np.arange(len(vmap))
+    origin = np.zeros(3)
+    cls, score, emb = labeller.predict(vmap, rows, origin, -1.0, color)
+    colors = vmap.colors if color else None
+    pf = point_features(vmap.positions, colors, origin, -1.0)
+    ctx_rows = vmap.context_rows(vmap.positions, 0.3, 50, uniform=context_draws(vmap.keys, 50))
+    owner, neighbour = distinct_pairs(ctx_rows)
+    assert len(owner) < 0.9 * (ctx_rows >= 0).sum()  # repeats were there to leave out
+    drawn = {(i, int(j)) for i, row in enumerate(ctx_rows) for j in row if j >= 0}
+    assert sorted(zip(owner.tolist(), neighbour.tolist(), strict=True)) == sorted(drawn)
+    c, m = context_features(vmap.positions, colors, rows, ctx_rows)
+    with torch.inference_mode():
+        e_ref, logits = labeller.model(torch.from_numpy(pf), torch.from_numpy(c), torch.from_numpy(m))
+        p_ref, c_ref = torch.softmax(logits, dim=1).max(dim=1)
+    np.testing.assert_array_equal(cls, c_ref.numpy())
+    np.testing.assert_allclose(score, p_ref.numpy(), atol=1e-5)
+    np.testing.assert_allclose(emb, e_ref.numpy(), atol=1e-5)
 
 
 def test_triplet_loss_is_the_semi_hard_rule() -> None:

@@ -220,7 +220,7 @@ class OnDemand:
         self.results["damage"] = data
 
 
-def print_human(result: StreamResult, outputs: dict[str, str]) -> None:
+def print_human(result: StreamResult, outputs: dict[str, str], info: RunInfo | None = None) -> None:
     s = result.summary
     state = "interrupted after" if s.interrupted else "processed"
     print(
@@ -240,7 +240,10 @@ def print_human(result: StreamResult, outputs: dict[str, str]) -> None:
             f"RPE {t.rpe_trans_m:.3f} m / {t.rpe_rot_deg:.2f}° per scan, drift {t.drift_percent:.2f} %"
         )
     if "rerun" in outputs:
-        print(f"open the recording with: rerun {outputs['rerun']}")
+        if info is not None and info.raw_in_log:
+            print(f"open it with its log: aftershock view {info.source} {outputs['rerun']}")
+        else:
+            print(f"open the recording with: rerun {outputs['rerun']}")
     for key in ("mcap", "export"):
         if key in outputs:
             print(f"{key}: {outputs[key]}")
@@ -305,7 +308,7 @@ def register(app: typer.Typer) -> None:
         if as_json:
             print(json.dumps(result_dict(result, outputs) | extra, indent=2, default=_jsonable))
         else:
-            print_human(result, outputs)
+            print_human(result, outputs, info)
             print_on_demand(extra)
         if result.summary.interrupted:
             raise typer.Exit(130)

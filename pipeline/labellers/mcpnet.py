@@ -37,6 +37,16 @@ RELABEL_PER_NEW: Final = 4  # with relabelling on: at most this many older voxel
 EMBED_REACH_M: Final = 1.5  # embed_cloud: each point is seen from at most this far away, as in a scan
 
 
+def distinct_pairs(ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(point index, neighbour row) of every distinct neighbour a point drew (draws are with replacement:
+    about a third repeat on a VLP-16 mission), absent neighbours (-1) left out."""
+    s = np.sort(ctx_rows, axis=1)
+    keep = s >= 0
+    keep[:, 1:] &= s[:, 1:] != s[:, :-1]
+    owner, _ = np.nonzero(keep)
+    return owner.astype(np.int64), s[keep].astype(np.int64)
+
+
 def floor_height(world_points: np.ndarray) -> float:
     """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns)."""
     if not len(world_points):
@@ -92,14 +102,15 @@ class MCPNetLabeller:
             r = rows[s : s + CHUNK]
             o = origin[s : s + CHUNK] if origin.ndim == 2 else origin
             pf = point_features(vmap.positions[r], None if colors is None else colors[r], o, floor_z)
-            ctx = mask = None
-            if use_ctx:
-                draws = context_draws(vmap.keys[r], self.num)
-                ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, uniform=draws)
-                c, m = context_features(vmap.positions, colors, r, ctx_rows)
-                ctx, mask = torch.from_numpy(c), torch.from_numpy(m)
             with torch.inference_mode():
-                e, logits = self.model(torch.from_numpy(pf), ctx, mask)
+                pooled = None
+                if use_ctx:
+                    draws = context_draws(vmap.keys[r], self.num)
+                    ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, uniform=draws)
+                    owner, neighbour = distinct_pairs(ctx_rows)
+                    c, _ = context_features(vmap.positions, colors, r[owner], neighbour[:, None])
+                    pooled = self.model.pool_pairs(torch.from_numpy(c[:, 0]), torch.from_numpy(owner), len(r))
+                e, logits = self.model.head(torch.from_numpy(pf), pooled)
                 prob = torch.softmax(logits, dim=1)
                 best, cls = prob.max(dim=1)
             classes[s : s + CHUNK] = cls.numpy().astype(np.uint16)

@@ -1,0 +1,88 @@
+"""Rerun viewers this tool starts: the native viewer or the web viewer, served on 127.0.0.1 unless the user
+names another address (the `rerun` command's own default is every interface)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+from aftershock.pipeline.errors import OutputError
+
+LOCALHOST: Final = "127.0.0.1"
+START_TIMEOUT_S: Final = 30.0
+VIEWER_MEMORY: Final = "75%"  # the viewer drops the oldest data past this; compact recordings stay below it
+
+
+def rerun_command() -> str:
+    """The `rerun` command of this environment (beside this Python), else the one on PATH."""
+    beside = Path(sys.executable).with_name("rerun")
+    return str(beside) if beside.exists() else "rerun"
+
+
+def free_port(host: str = LOCALHOST) -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def listening(host: str, port: int, timeout_s: float = 0.5) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return True
+    except OSError:
+        return False
+
+
+@dataclass(frozen=True, slots=True)
+class Viewer:
+    """A started viewer: where SDKs send data (`grpc_url`), and for the web viewer the page to open."""
+
+    process: subprocess.Popen[bytes] | None  # None when a viewer was already listening there
+    grpc_url: str
+    web_url: str | None = None
+
+
+def start_viewer(*, web: bool = False, bind: str = LOCALHOST, port: int | None = None) -> Viewer:
+    """Start a native viewer (detached: it outlives this process) or a web viewer server (a child that
+    ends with this process), listening on `bind`; reuse a native viewer already listening on `port`."""
+    connect_host = LOCALHOST if bind in ("0.0.0.0", "::") else bind
+    grpc_port = port or free_port(LOCALHOST if connect_host == LOCALHOST else bind)
+    grpc_url = f"rerun+http://{connect_host}:{grpc_port}/proxy"
+    if not web and listening(connect_host, grpc_port):
+        return Viewer(None, grpc_url)
+    cmd = [rerun_command(), "--bind", bind, "--port", str(grpc_port), "--memory-limit", VIEWER_MEMORY]
+    web_url = None
+    if web:
+        web_port = free_port(LOCALHOST if connect_host == LOCALHOST else bind)
+        cmd += ["--serve-web", "--web-viewer-port", str(web_port), "--server-memory-limit", VIEWER_MEMORY]
+        web_url = f"http://{connect_host}:{web_port}/?url=" + grpc_url.replace(":", "%3A").replace("/", "%2F")
+    else:
+        cmd += ["--expect-data-soon"]
+    env = dict(os.environ, RERUN_ANALYTICS=os.environ.get("RERUN_ANALYTICS", "0"))
+    # stderr into a file, not a pipe: a viewer that outlives us must not write into a closed pipe
+    with tempfile.TemporaryFile() as errors:
+        try:
+            proc = subprocess.Popen(
+                cmd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=errors,
+                start_new_session=not web,  # the native viewer stays open after we exit
+            )  # fmt: skip
+        except OSError as exc:
+            raise OutputError(f"cannot start the Rerun viewer ({exc.strerror})", cmd[0]) from None
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not listening(connect_host, grpc_port):
+            if proc.poll() is not None:
+                errors.seek(0)
+                err = errors.read().decode(errors="replace").strip().splitlines()
+                raise OutputError(f"the Rerun viewer stopped at start ({err[-1] if err else 'no message'})", cmd[0])
+            if time.monotonic() > deadline:
+                proc.kill()
+                raise OutputError(f"the Rerun viewer did not start listening within {START_TIMEOUT_S:.0f} s", grpc_url)
+            time.sleep(0.2)
+    return Viewer(proc, grpc_url, web_url)
