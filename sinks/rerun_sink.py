@@ -444,6 +444,13 @@ class RerunSink(Sink):
         idx = np.flatnonzero(frame.keep) if frame.keep is not None else np.arange(len(frame.scan))
         return _world_points(frame)[idx], idx
 
+    def _one_per_voxel(self, frame: Frame) -> np.ndarray:
+        """Indices of one kept point per map voxel: as the labelling stage found them, else downsampled here."""
+        if frame.voxel_points is not None:
+            return frame.voxel_points
+        pts, idx = self._labelled_subset(frame)
+        return idx[voxel_downsample(pts, self.cfg.map_voxel_m)[0]] if len(pts) else idx
+
     def _log_labelled(self, frame: Frame) -> None:
         if frame.labels is None or not self.cfg.debug_layers:
             return
@@ -454,25 +461,27 @@ class RerunSink(Sink):
             self.rec.log(L.EMBEDDING, rr.Points3D(pts, colors=colors, radii=SCAN_RADIUS))
 
     def _log_clustered(self, frame: Frame) -> None:
-        if frame.labels is None:
+        labels = frame.labels
+        if labels is None:
             return
-        pts, idx = self._labelled_subset(frame)
-        inst = frame.labels.instance_ids[idx]
-        cls = frame.labels.class_ids[idx]
         if self.cfg.debug_layers:
+            pts, idx = self._labelled_subset(frame)
+            inst = labels.instance_ids[idx]
             self.rec.log(
                 L.INSTANCES,
-                rr.Points3D(pts, colors=_instance_colors(inst), class_ids=cls, radii=SCAN_RADIUS),
+                rr.Points3D(pts, colors=_instance_colors(inst), class_ids=labels.class_ids[idx], radii=SCAN_RADIUS),
                 rr.AnyValues(instance_id=inst),
             )
-        # The default layer: one point per voxel, positions once, class and instance beside them.
-        if len(pts):
-            keep, _ = voxel_downsample(pts, self.cfg.map_voxel_m)
-            pts, cls, inst = pts[keep].astype(np.float32), cls[keep], inst[keep]
+        # The default layer: one point per map voxel, positions once, class and instance beside them.
+        one = self._one_per_voxel(frame)
         self.rec.log(
             L.LABELS,
-            rr.Points3D(pts, class_ids=cls, radii=MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m * 1.5),
-            rr.AnyValues(instance_id=inst),
+            rr.Points3D(
+                _world_points(frame)[one].astype(np.float32),
+                class_ids=labels.class_ids[one],
+                radii=MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m * 1.5,
+            ),
+            rr.AnyValues(instance_id=labels.instance_ids[one]),
         )
         for m in frame.merges:
             merged = ", ".join(str(i) for i in m.merged)

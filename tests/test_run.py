@@ -60,13 +60,27 @@ def test_real_logs_run_end_to_end(name: str, lidar_dir: Path, tmp_path: Path, ca
 
     rec = read_rrd(out)
     assert {L.SCAN_TIMELINE} <= rec.timelines
-    assert {L.ROBOT, L.REGISTERED, L.LABELS, L.INSTANCES} <= rec.entities
+    assert {L.ROBOT, L.LABELS} <= rec.entities
+    assert not {L.REGISTERED, L.LABELLED, L.INSTANCES, L.EMBEDDING} & rec.entities  # --debug-layers only
+    # raw scans only where the viewer cannot open the log beside the recording (ROS 1 MCAP, PCD)
+    assert (L.RAW in rec.entities) == ("ros1" in name or not name.endswith(".mcap"))
     assert rec.under(L.MAP)
     seqs = rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)
     assert len(seqs) == summary["scans"]
     classes = set(rec.values(L.LABELS, "Points3D:class_ids").astype(int).tolist())
     assert classes and classes <= set(range(NUM_CLASSES))
     assert rrd_verify(out).returncode == 0
+
+
+def test_debug_layers_on_request(lidar_dir: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "debug.rrd"
+    log = lidar_dir / REAL_LOGS[0]
+    args = ["run", str(log), "--save", str(out), "--labeller", "region-growing", "--quiet", "--debug-layers"]
+    assert _run_cli(args, capsys)[0] == 0
+    rec = read_rrd(out)
+    assert {L.REGISTERED, L.LABELLED, L.INSTANCES, L.LABELS} <= rec.entities
+    kept = rec.values(L.LABELLED, "Points3D:class_ids")
+    assert len(kept) > 2 * len(rec.values(L.LABELS, "Points3D:class_ids"))  # every kept point, not one per voxel
 
 
 # ----------------------------------------------------------------------------------- a log with truth

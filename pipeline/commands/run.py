@@ -290,12 +290,16 @@ def register(app: typer.Typer) -> None:
         region: str | None = typer.Option(
             None, "--region", help="Limit --refine/--damage to the box x0,y0,z0,x1,y1,z1 (metres, map frame)."
         ),
+        debug_layers: bool = typer.Option(
+            False, "--debug-layers", help="Also record every stage of every scan at full resolution (large)."
+        ),
         force: bool = typer.Option(False, "--force", help="Overwrite existing outputs."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or notices."),
         as_json: bool = typer.Option(False, "--json", help="Print the run summary as JSON."),
     ) -> None:
         """Register, label and cluster a LiDAR log scan by scan, streaming every stage to the outputs."""
-        cfg = build_config(config, overrides, labeller, topic, start, end, every, max_scans)
+        sets = [*(overrides or []), "rerun.debug_layers=true"] if debug_layers else overrides
+        cfg = build_config(config, sets, labeller, topic, start, end, every, max_scans)
         box = parse_region(region)
         src = resolve_source(source)
         scans, info = open_scans(src, cfg, quiet)
