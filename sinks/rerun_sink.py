@@ -55,7 +55,7 @@ from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Scan, Story
 from aftershock.sinks import rerun_blueprint as L
 
-TRAJECTORY_PIECE: Final = 500  # poses per trajectory strip; older strips are never re-logged
+TRAJECTORY_PIECE: Final = 100  # poses per trajectory strip (each scan re-logs its strip); older strips stay
 DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)
 SPAWN_PORT: Final = 9876
 BATCH_SECONDS: Final = 1.0
