@@ -61,6 +61,7 @@ SPAWN_PORT: Final = 9876
 BATCH_SECONDS: Final = 1.0
 BATCH_BYTES: Final = 16 * 2**20
 FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
+STATS_EVERY: Final = 10  # per-scan scalars go out as columns every this many scans (live plots lag by as much)
 RECORDING_ID_PREFIX: Final = "aftershock-"
 
 SCAN_RADIUS: Final = rr.Radius.ui_points(1.5)
@@ -241,6 +242,8 @@ class RerunSink(Sink):
         self._scan: Scan | None = None  # the scan whose times are currently set
         self._stats_logged: set[str] = set()  # what was already logged for the scan `_stats_seq`
         self._stats_seq: int | None = None
+        self._stats: dict[str, list[tuple[int, int | None, int, float]]] = {}  # entity -> (seq, log, stamp, value)
+        self._stats_scans = 0  # scans buffered in `_stats`
         self._trajectory: list[np.ndarray] = []
         self._piece = 0
         self._tiles: dict[str, tuple[int, int, int]] = {}  # tile -> (points, position hash, label hash)
@@ -364,6 +367,7 @@ class RerunSink(Sink):
 
     def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
         self._start()
+        self._flush_stats()
         if len(final_map):
             self._log_map(final_map)
         text = (
@@ -380,6 +384,8 @@ class RerunSink(Sink):
         if self._closed:
             return
         self._closed = True
+        if self._stats:  # scalars of scans after `end` (or without one) still reach the file
+            self._flush_stats()
         try:
             self.rec.flush()
         except RuntimeError as exc:  # a viewer that went away or never came: the file is still finished
@@ -394,6 +400,10 @@ class RerunSink(Sink):
         if scan.seq != self._stats_seq:
             self._stats_seq = scan.seq
             self._stats_logged.clear()
+            self._stats_scans += 1
+            if self._stats_scans > STATS_EVERY:
+                self._flush_stats()
+                self._stats_scans = 1
         self.rec.set_time(L.SCAN_TIMELINE, sequence=scan.seq)
         if self._mcap_times and scan.log_time_ns is not None:
             self.rec.set_time(L.MCAP_LOG_TIMELINE, timestamp=_datetime(scan.log_time_ns))
@@ -488,19 +498,34 @@ class RerunSink(Sink):
             self.rec.log(f"{L.LOG}/merges", rr.TextLog(f"scan {m.seq}: instances {merged} merged into {m.into}"))
 
     def _log_stats(self, frame: Frame) -> None:
-        if "raw_points" not in self._stats_logged:
-            self._stats_logged.add("raw_points")
-            self.rec.log(f"{L.STATS_COUNTS}/raw_points", rr.Scalars(len(frame.scan)))
-        for name, ms in frame.timings_ms.items():
-            key = f"t:{name}"
+        """Each scalar once per scan (the first value seen), buffered and sent as columns (`_flush_stats`)."""
+        scan = frame.scan
+        when = (scan.seq, scan.log_time_ns if self._mcap_times else None, scan.stamp_ns)
+        values = [("raw_points", f"{L.STATS_COUNTS}/raw_points", float(len(scan)))]
+        values += [(f"t:{k}", f"{L.STATS_TIME}/{k}", float(v)) for k, v in frame.timings_ms.items()]
+        values += [(f"c:{k}", f"{L.STATS_COUNTS}/{k}", float(v)) for k, v in frame.counts.items()]
+        for key, entity, value in values:
             if key not in self._stats_logged:
                 self._stats_logged.add(key)
-                self.rec.log(f"{L.STATS_TIME}/{name}", rr.Scalars(float(ms)))
-        for name, count in frame.counts.items():
-            key = f"c:{name}"
-            if key not in self._stats_logged:
-                self._stats_logged.add(key)
-                self.rec.log(f"{L.STATS_COUNTS}/{name}", rr.Scalars(float(count)))
+                self._stats.setdefault(entity, []).append((*when, value))
+
+    def _flush_stats(self) -> None:
+        """One `send_columns` per series for the buffered scans instead of one `log` per value and scan."""
+        for entity, rows in self._stats.items():
+            for mcap in (True, False):  # rows on the MCAP timelines, then rows on the sensor time
+                sel = [r for r in rows if (r[1] is not None) == mcap]
+                if not sel:
+                    continue
+                seq, log_ns, stamp_ns, value = (np.array(c) for c in zip(*sel, strict=True))
+                stamps = stamp_ns.astype("datetime64[ns]")
+                indexes = [rr.TimeColumn(L.SCAN_TIMELINE, sequence=seq)]
+                if mcap:
+                    indexes.append(rr.TimeColumn(L.MCAP_LOG_TIMELINE, timestamp=log_ns.astype("datetime64[ns]")))
+                    indexes.append(rr.TimeColumn(L.MCAP_STAMP_TIMELINE, timestamp=stamps))
+                else:
+                    indexes.append(rr.TimeColumn(L.SENSOR_TIMELINE, timestamp=stamps))
+                self.rec.send_columns(entity, indexes=indexes, columns=rr.Scalars.columns(scalars=value))
+        self._stats.clear()
 
     def _log_map(self, cloud: LabelledCloud) -> None:
         """Downsample, cut into tiles, and re-log only the tiles whose content changed since the last update."""

@@ -90,6 +90,10 @@ def test_recording_has_the_layout(recorded: tuple[Path, list], velodyne: Path) -
     for entity, component in ((L.LABELS, "Points3D:class_ids"), (L.ROBOT, "Transform3D:translation")):
         assert rec.times(entity, component, L.SCAN_TIMELINE).tolist() == seqs, entity
     assert len(rec.rows("stats/time_ms/register", "Scalars:scalars")) == len(done)
+    # per-scan scalars are sent as columns, on the same times as the layers
+    for timeline in (L.SCAN_TIMELINE, L.MCAP_LOG_TIMELINE, L.MCAP_STAMP_TIMELINE):
+        stats = rec.times("stats/counts/kept", "Scalars:scalars", timeline)
+        assert np.array_equal(stats, rec.times(L.LABELS, "Points3D:class_ids", timeline)), timeline
 
 
 def test_recording_holds_what_went_in(recorded: tuple[Path, list]) -> None:
