@@ -94,7 +94,7 @@ class RerunConfig(_Section):
     map_tile_m: float = 4.0
     # Raw scans go into the recording only where the log cannot be opened beside it (ROS 1, files, sim://),
     # downsampled to this; 0 keeps them at full resolution.
-    raw_voxel_m: float = 0.2
+    raw_voxel_m: float = 0.3
     raw_points: bool = True
     # Full-resolution per-stage layers of every scan (registered, labelled, instances, embedding): for
     # debugging a scan, about 15x the size of a recording without them.
