@@ -58,29 +58,35 @@ _CPU_TIMERS: Final = textwrap.dedent(
     """
 )
 
-_KISS_ALONE: Final = _CPU_TIMERS + textwrap.dedent(
+_KISS_ALONE: Final = textwrap.dedent(
     """
-    import itertools, json, resource, sys
+    import itertools, json, resource, sys, time
     from threadpoolctl import threadpool_limits
     from aftershock import sources
     from aftershock.pipeline.config import load_config
-    from aftershock.pipeline.register import Registrar, guess_environment, register_stage
-    from aftershock.pipeline.stream import _timed_source
+    from aftershock.pipeline.register import Registrar, guess_environment
+    from aftershock.pipeline.types import Frame
 
     cfg = load_config()
     scans = sources.open(sys.argv[1])
     first = next(scans)
     with threadpool_limits(1, user_api="blas"):  # as the stream does
         registrar = Registrar(cfg.registration, guess_environment(first))
-        frames = register_stage(_timed_source(itertools.chain([first], scans)), registrar)
+        it = itertools.chain([first], scans)
         totals, n = {"source": 0.0, "register": 0.0}, 0
-        for frame in frames:
+        while True:
+            t0 = time.process_time()
+            scan = next(it, None)
+            totals["source"] += time.process_time() - t0
+            if scan is None:
+                break
+            t0 = time.process_time()
+            registrar.register(Frame(scan))
+            totals["register"] += time.process_time() - t0
             n += 1
-            for k in totals:
-                totals[k] += frame.timings_ms.get(k, 0.0)
     print(json.dumps({
         "scans": n,
-        "cpu_ms": {k: v / n for k, v in totals.items()},
+        "cpu_ms": {k: v / n * 1e3 for k, v in totals.items()},
         "cpu_s": time.process_time(),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }))
