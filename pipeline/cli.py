@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
+import signal
 import sys
+import threading
 import warnings
 from typing import Final
 
@@ -12,6 +15,8 @@ import typer
 
 from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
 
+EXIT_SIGINT: Final = 130  # 128 + the signal's number, as shells report a process a signal ended
+EXIT_SIGTERM: Final = 143
 COMMAND_MODULES: Final[tuple[str, ...]] = (
     "info",
     "simulate",
@@ -67,31 +72,66 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
         print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
 
+class _Terminated:
+    """Set when SIGTERM arrived: the run stops as after Ctrl-C, and the exit code says which signal it was."""
+
+    seen: bool = False
+
+
+def _terminate(signum: int, _frame: object) -> None:
+    # `docker stop`, systemd and `timeout` send SIGTERM: stop like Ctrl-C, so every output is finished.
+    _Terminated.seen = True
+    raise KeyboardInterrupt
+
+
+def _interrupted_code() -> int:
+    return EXIT_SIGTERM if _Terminated.seen else EXIT_SIGINT
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: user mistakes become one line on stderr and exit code 2, Ctrl-C exit code 130."""
+    """Entry point: user mistakes become one line on stderr and exit code 2 (usage errors: typer's usual
+    message, also 2), Ctrl-C exit code 130, SIGTERM the same clean stop with 143."""
+    if not sys.stderr.isatty():  # no colour codes in logs and files: Rerun's and rich's loggers honour NO_COLOR
+        os.environ.setdefault("NO_COLOR", "1")
     logging.basicConfig(level=logging.WARNING, format="aftershock: %(levelname)s: %(message)s")
     warnings.showwarning = _show_warning
     _register_commands()
+    _Terminated.seen = False
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        code = _dispatch(argv)
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, previous)
+    return _interrupted_code() if code == EXIT_SIGINT else code
+
+
+def _dispatch(argv: list[str] | None) -> int:
     try:
         result = app(args=argv, standalone_mode=False)
     except AftershockError as exc:
         print(f"aftershock: error: {exc}", file=sys.stderr)
+        if getattr(exc, "process_stuck", False):  # a wedged writer thread would keep the process from ending
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(2)
         return 2
     except KeyboardInterrupt:
         print("aftershock: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_SIGINT
     except typer.Exit as exc:
         return exc.exit_code
-    except Exception as exc:  # click's usage errors
-        import click
-
-        if isinstance(exc, click.exceptions.Abort):
-            print("aftershock: interrupted", file=sys.stderr)
-            return 130
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            return exc.exit_code
-        raise
+    except typer.Abort:
+        print("aftershock: interrupted", file=sys.stderr)
+        return EXIT_SIGINT
+    except typer.TyperException as exc:  # usage errors; typer raises its bundled click's, not click's own
+        show = getattr(exc, "show", None)
+        if show is not None:
+            show()  # coloured only when stderr is a terminal
+        else:
+            print(f"aftershock: error: {exc.format_message()}", file=sys.stderr)
+        return exc.exit_code
     return result if isinstance(result, int) else 0
 
 

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Final
 
@@ -15,9 +17,16 @@ from aftershock.pipeline.types import LabelledCloud
 _INTENSITY_NAMES: Final = ("intensity", "scalar_intensity", "scalar_Intensity", "reflectance")
 
 
-def check_output(path: str | Path, force: bool = False) -> Path:
-    """Refuse to overwrite an existing file unless forced; make the parent folder; fail early if unwritable."""
+def check_output(path: str | Path, force: bool = False, inputs: Iterable[str | Path] = ()) -> Path:
+    """Refuse to overwrite an existing file unless forced, a folder always, and any of `inputs` (also through
+    symlinks, even with `force`: the log would be destroyed while it is read); make the parent folder; fail
+    early if unwritable."""
     p = Path(path)
+    if p.is_dir():
+        raise OutputError("is a folder; give a file name", p)
+    for src in inputs:
+        if _same_file(p, Path(src)):
+            raise OutputError(f"is the input {src}; choose another output", p)
     if p.exists() and not force:
         raise OutputError("already exists (pass --force to overwrite)", p)
     try:
@@ -29,9 +38,61 @@ def check_output(path: str | Path, force: bool = False) -> Path:
     return p
 
 
-def _writable(folder: Path) -> bool:
-    import os
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
 
+
+def check_ply_body(path: Path) -> None:
+    """Refuse a PLY whose header says binary but whose body holds ASCII text or fewer bytes than its fixed-size
+    elements need: read as binary, such a file gives nonsense points without an error."""
+    with path.open("rb") as fh:
+        head = fh.read(_PLY_HEADER_MAX)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return  # plyfile names the problem
+    body_at = head.find(b"\n", end) + 1
+    lines = head[:end].decode("ascii", "replace").splitlines()
+    fmt = next((ln.split()[1] for ln in lines if ln.startswith("format") and len(ln.split()) > 1), "ascii")
+    if fmt == "ascii":
+        return
+    sample = head[body_at : body_at + 256]
+    if len(sample) >= 16 and all(c in _ASCII_NUMBER_BYTES for c in sample):
+        raise InputError(f"the header says {fmt}, but the data is ASCII text; fix the header's format line", path)
+    size = path.stat().st_size - body_at
+    expected = _ply_fixed_bytes(lines)
+    if expected is not None and size < expected:
+        raise InputError(f"the header says {fmt} with {expected} bytes of data, but the file holds {size}", path)
+
+
+_PLY_HEADER_MAX: Final = 64 * 1024
+_ASCII_NUMBER_BYTES: Final = frozenset(b"0123456789+-.eE \t\r\nnaifNAIF")
+_PLY_SIZES: Final = {
+    **dict.fromkeys(("char", "int8", "uchar", "uint8"), 1),
+    **dict.fromkeys(("short", "int16", "ushort", "uint16"), 2),
+    **dict.fromkeys(("int", "int32", "uint", "uint32", "float", "float32"), 4),
+    **dict.fromkeys(("double", "float64"), 8),
+}
+
+
+def _ply_fixed_bytes(lines: list[str]) -> int | None:
+    """Bytes the binary body of a PLY header needs, or None when an element has list properties."""
+    total = 0
+    count = 0
+    for ln in [*lines, "element end 0"]:
+        words = ln.split()
+        if words[:1] == ["element"] and len(words) == 3:
+            count = int(words[2]) if words[2].isdigit() else 0
+        elif words[:1] == ["property"] and len(words) >= 3:
+            if words[1] == "list" or words[1] not in _PLY_SIZES:
+                return None
+            total += count * _PLY_SIZES[words[1]]
+    return total
+
+
+def _writable(folder: Path) -> bool:
     return os.access(folder, os.W_OK | os.X_OK)
 
 
@@ -40,8 +101,13 @@ def read_cloud(path: str | Path) -> LabelledCloud:
     p = Path(path)
     if not p.exists():
         raise InputError("no such file", p)
+    if not p.is_file():
+        raise InputError("not a regular file", p)
+    if not os.access(p, os.R_OK):
+        raise InputError("cannot read the file (permission denied)", p)
     if p.suffix.lower() != ".ply":
         return _read_with_open3d(p)
+    check_ply_body(p)
     try:
         ply = PlyData.read(str(p))
     except (PlyParseError, ValueError, OSError, UnicodeDecodeError) as exc:
@@ -75,6 +141,21 @@ def read_cloud(path: str | Path) -> LabelledCloud:
 
 
 _KNOWN_FLOATS: Final = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha"})
+
+
+def finite_points(
+    cloud: LabelledCloud, path: str | Path, notice: Callable[[str], None]
+) -> tuple[LabelledCloud, np.ndarray]:
+    """The cloud without points whose coordinates are NaN or infinite (one notice says how many went), and
+    the kept indices (to cut per-point masks alike); InputError when nothing usable is left."""
+    ok = np.isfinite(cloud.points).all(axis=1)
+    keep = np.flatnonzero(ok)
+    if len(keep) == len(cloud):
+        return cloud, keep
+    if len(keep) == 0:
+        raise InputError(f"none of its {len(cloud)} points has finite coordinates", path)
+    notice(f"{path}: dropped {len(cloud) - len(keep)} of {len(cloud)} points with NaN or infinite coordinates")
+    return cloud.select(keep), keep
 
 
 def _read_with_open3d(p: Path) -> LabelledCloud:
@@ -113,8 +194,21 @@ def write_cloud(path: str | Path, cloud: LabelledCloud, *, force: bool = False, 
     data = np.empty(n, dtype=fields)
     for name, _ in fields:
         data[name] = columns[name]
-    try:
-        PlyData([PlyElement.describe(data, "vertex")], text=not binary).write(str(p))
-    except OSError as exc:
-        raise OutputError(f"cannot write: {exc.strerror}", p) from None
+    ply = PlyData([PlyElement.describe(data, "vertex")], text=not binary)
+    write_atomically(p, lambda tmp: ply.write(str(tmp)))
     return p
+
+
+def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
+    """`write(tmp)` into a temporary file beside `path`, then rename it over `path`: a full disk or an
+    interruption leaves the old file (if any) as it was, never half a file. OutputError names `path`."""
+    tmp = path.with_name(f".{path.name}.part")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"cannot write: {exc.strerror or exc}", path) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

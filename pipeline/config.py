@@ -10,9 +10,9 @@ import json
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Final, Literal
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from aftershock.pipeline.errors import InputError
 
@@ -25,35 +25,47 @@ class Environment(StrEnum):
     OUTDOOR = "outdoor"
 
 
+# Every numeric setting is finite (NaN would collapse a map into one voxel) and in its range; checked when the
+# config is loaded, before any work, so a bad value is one line naming the setting.
+Positive = Annotated[float, Field(gt=0)]  # sizes, distances, ratios
+NonNegative = Annotated[float, Field(ge=0)]  # 0 turns a step off
+Fraction = Annotated[float, Field(ge=0, le=1)]  # shares and probabilities
+Cosine = Annotated[float, Field(ge=-1, le=1)]  # cosine similarities
+Angle = Annotated[float, Field(gt=0, le=180)]  # degrees
+Count = Annotated[int, Field(ge=1)]
+NonNegativeCount = Annotated[int, Field(ge=0)]
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]  # numpy and torch take 32-bit seeds
+
+
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 class SourceConfig(_Section):
     topic: str | None = None
     pose_topic: str | None = None
-    start_s: float | None = None  # seconds from the log start
-    end_s: float | None = None
-    max_scans: int | None = None
-    every: int = 1
+    start_s: NonNegative | None = None  # seconds from the log start
+    end_s: NonNegative | None = None
+    max_scans: Count | None = None
+    every: Count = 1
 
 
 class RegisterConfig(_Section):
     """KISS-ICP settings; None = chosen from the environment (indoor logs need a finer map)."""
 
-    voxel_size_m: float | None = None
-    min_range_m: float | None = None
-    max_range_m: float | None = None
+    voxel_size_m: Positive | None = None
+    min_range_m: NonNegative | None = None
+    max_range_m: Positive | None = None
     deskew: bool = True
-    max_points_per_voxel: int = 20
+    max_points_per_voxel: Count = 20
     # A frame whose ICP moved it further than this from the constant-velocity prediction is flagged.
-    max_correction_m: float = 1.0
+    max_correction_m: Positive = 1.0
 
 
 class MapConfig(_Section):
-    voxel_size_m: float = 0.1
-    context_cell_m: float = 0.3  # MCPNet context: 3 x 3 x 3 cells of this size around a point
-    context_points: int = 50
+    voxel_size_m: Positive = 0.1
+    context_cell_m: Positive = 0.3  # MCPNet context: 3 x 3 x 3 cells of this size around a point
+    context_points: Count = 50
 
 
 class LabelConfig(_Section):
@@ -61,40 +73,40 @@ class LabelConfig(_Section):
     environment: Environment = Environment.AUTO
     # Horizontal range kept for labelling. The study's 2 m suits its -45..80 degree scanner; a VLP-16 (+-15
     # degrees) at robot height first meets the floor ~3.4 m away, so indoors we keep 4 m (MCPNet is trained so).
-    indoor_range_m: float = 4.0
-    outdoor_range_m: float = 10.0
+    indoor_range_m: Positive = 4.0
+    outdoor_range_m: Positive = 10.0
     relabel_old_voxels: bool = False
     instance_vote: bool = True  # MCPNet: an instance's voxels take the class they vote for (confidence-weighted)
     weights: str | None = None  # None = the shipped weights in models/weights
 
 
 class ClusterConfig(_Section):
-    beta_indoor: float = 0.9  # cosine similarity of embeddings needed to link two voxels
-    beta_outdoor: float = 0.92
+    beta_indoor: Cosine = 0.9  # cosine similarity of embeddings needed to link two voxels
+    beta_outdoor: Cosine = 0.92
     # Labellers with embeddings: neighbouring instances merge when their mean embeddings agree this well
     # (cosine similarity); > 1 turns it off.
-    merge_beta: float = 0.9
+    merge_beta: Annotated[float, Field(ge=-1)] = 0.9
     # Fragments under this many voxels that stopped growing for `absorb_after_scans` scans join the
     # neighbouring instance whose mean embedding agrees best, at `absorb_beta` or more (1 voxel = off).
-    absorb_voxels: int = 30
-    absorb_after_scans: int = 10
-    absorb_beta: float = 0.7
-    link_reach_voxels: int = 1  # a new voxel links to voxels up to this many voxels away (1 = the 26 around it)
-    normal_angle_deg: float = 20.0  # region-growing baseline: neighbouring normals within this angle
-    color_distance: float = 0.12  # region-growing baseline: RGB distance in [0, 1] units
+    absorb_voxels: Count = 30
+    absorb_after_scans: NonNegativeCount = 10
+    absorb_beta: Cosine = 0.7
+    link_reach_voxels: Count = 1  # a new voxel links to voxels up to this many voxels away (1 = the 26 around it)
+    normal_angle_deg: Angle = 20.0  # region-growing baseline: neighbouring normals within this angle
+    color_distance: NonNegative = 0.12  # region-growing baseline: RGB distance in [0, 1] units
 
 
 class RerunConfig(_Section):
     # The accumulated map shown in the viewer, and each scan's labelled layer, are downsampled to this (the
     # voxel map's own resolution by default: one point per labelled voxel).
-    map_voxel_m: float = 0.1
-    map_every: int = 10  # re-log the accumulated map every N scans
+    map_voxel_m: Positive = 0.1
+    map_every: Count = 10  # re-log the accumulated map every N scans
     # The map is logged in square tiles of this size and only changed tiles are re-logged (a tile whose
     # points stayed and only labels changed gets its labels alone): small tiles keep a long mission light.
-    map_tile_m: float = 4.0
+    map_tile_m: Positive = 4.0
     # Raw scans go into the recording only where the log cannot be opened beside it (ROS 1, files, sim://),
     # downsampled to this; 0 keeps them at full resolution.
-    raw_voxel_m: float = 0.3
+    raw_voxel_m: NonNegative = 0.3
     raw_points: bool = True
     # Full-resolution per-stage layers of every scan (registered, labelled, instances, embedding): for
     # debugging a scan, about 15x the size of a recording without them.
@@ -103,88 +115,92 @@ class RerunConfig(_Section):
 
 
 class LRGNetConfig(_Section):
-    voxel_size_m: float = 0.1
+    voxel_size_m: Positive = 0.1
     # I and J: the pooled samples of a region and its neighbours. The network is trained on 128; pooling 256 measured
     # better than 512 on validation rooms of the training buildings (office ARI 0.825 against 0.796).
-    inliers: int = 256  # I
-    neighbours: int = 256  # J
-    delta_m: float = 0.1  # δ: neighbour set = unlabelled points within this distance of the region
-    max_steps: int = 200  # a floor grows by one voxel ring a step: 60 cut large floors and ceilings apart
-    min_segment_points: int = 10
-    seed_min_neighbours: int = 6  # seeds: voxels with fewer occupied neighbours come after all others
+    inliers: Count = 256  # I
+    neighbours: Count = 256  # J
+    delta_m: Positive = 0.1  # δ: neighbour set = unlabelled points within this distance of the region
+    max_steps: Count = 200  # a floor grows by one voxel ring a step: 60 cut large floors and ceilings apart
+    min_segment_points: Count = 10
+    seed_min_neighbours: NonNegativeCount = 6  # seeds: voxels with fewer occupied neighbours come after all others
     search: str = "greedy"  # greedy | restart | beam
-    restarts: int = 10
-    beam_width: int = 3
-    beam_expansions: int = 3
+    restarts: Count = 10
+    beam_width: Count = 3
+    beam_expansions: Count = 3
     score: str = "ml"  # ml (summed log-likelihood) | np (number of points)
-    seed: int = 0
+    seed: Seed = 0
     weights: str | None = None
-    remove_threshold: float = 0.9  # greedy: an inlier goes when P(remove) exceeds this (its loss is class-balanced)
-    add_threshold: float = 0.3  # greedy: a neighbour joins when P(add) exceeds this; both tuned on validation rooms
+    remove_threshold: Fraction = 0.9  # greedy: an inlier goes when P(remove) exceeds this (its loss is class-balanced)
+    add_threshold: Fraction = 0.3  # greedy: a neighbour joins when P(add) exceeds this; both tuned on validation rooms
     # Baselines run beside LRGNet (pipeline.refine.baselines)
-    baseline_normal_angle_deg: float = 10.0  # threshold region growing: normals within this angle (tuned)
-    baseline_color_distance: float = 0.12  # ... and RGB (0..1) closer than this
-    smoothness_k: int = 16  # Rabbani et al.: neighbours per point
-    smoothness_angle_deg: float = 10.0
-    smoothness_curvature_percentile: float = 98.0  # points above this curvature percentile stop growing
-    fpfh_similarity: float = 0.98  # cosine similarity of FPFH histograms to link touching voxels (tuned likewise)
-    mcpnet_similarity: float = 0.9  # cosine similarity of MCPNet embeddings (the clustering stage's β indoor)
+    baseline_normal_angle_deg: Angle = 10.0  # threshold region growing: normals within this angle (tuned)
+    baseline_color_distance: NonNegative = 0.12  # ... and RGB (0..1) closer than this
+    smoothness_k: Count = 16  # Rabbani et al.: neighbours per point
+    smoothness_angle_deg: Angle = 10.0
+    smoothness_curvature_percentile: Annotated[float, Field(ge=0, le=100)] = (
+        98.0  # points above this curvature percentile stop growing
+    )
+    fpfh_similarity: Cosine = 0.98  # cosine similarity of FPFH histograms to link touching voxels (tuned likewise)
+    mcpnet_similarity: Cosine = 0.9  # cosine similarity of MCPNet embeddings (the clustering stage's β indoor)
 
 
 class CrackConfig(_Section):
-    resolution_m: float | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
+    resolution_m: Positive | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
     features: str = "shade+crackembed"  # best balance of real elements and unseen simulated ones (bench_cracks)
     detector: str = "isolation-forest"
-    neighbourhood_m: float = 0.01
-    severe_width_m: float = 0.0032  # 1/8 inch
-    min_crack_points: int = 20
-    seed: int = 0
-    normal_cell_m: float = 0.015  # normals/curvature: PCA over the 3 x 3 x 3 block of these voxels (the study's)
-    fpfh_radius_m: float = 0.02
-    smooth_cell_m: float = 0.02  # detector scores averaged over the 3 x 3 x 3 block of these voxels; 0 = off
+    neighbourhood_m: Positive = 0.01
+    severe_width_m: Positive = 0.0032  # 1/8 inch
+    min_crack_points: Count = 20
+    seed: Seed = 0
+    normal_cell_m: Positive = 0.015  # normals/curvature: PCA over the 3 x 3 x 3 block of these voxels (the study's)
+    fpfh_radius_m: Positive = 0.02
+    smooth_cell_m: NonNegative = 0.02  # detector scores averaged over the 3 x 3 x 3 block of these voxels; 0 = off
     smooth_keep_raw: bool = True  # a point's own score also counts (thin cracks survive the smoothing)
-    link_m: float = 0.01  # crack points closer than this (or link_spacings x the spacing) belong to one crack
-    link_spacings: float = 2.0
-    support_spacings: float = 3.0  # a crack point needs min_support of the points within this many spacings ...
-    min_support: float = 0.5  # ... to be crack points too (0 = no clean-up before linking)
-    min_elongation: float = 3.0  # a reported crack is at least this many times longer than its opening is wide
+    link_m: NonNegative = 0.01  # crack points closer than this (or link_spacings x the spacing) belong to one crack
+    link_spacings: NonNegative = 2.0
+    support_spacings: Positive = 3.0  # a crack point needs min_support of the points within this many spacings ...
+    min_support: Fraction = 0.5  # ... to be crack points too (0 = no clean-up before linking)
+    min_elongation: NonNegative = 3.0  # a reported crack is at least this many times longer than its opening is wide
     # "valley": the anomaly detectors' threshold is raised to the valley before a separate mode of high scores
     # (one at least valley_rise times denser than the valley) when the scores have one; "detector": never
     threshold: Literal["valley", "detector"] = "valley"
-    valley_rise: float = 2.0
-    grow_m: float = 0.03  # after the support rule (0 = off), points this close to a crack whose smoothed score ...
+    valley_rise: Positive = 2.0
+    grow_m: NonNegative = (
+        0.03  # after the support rule (0 = off), points this close to a crack whose smoothed score ...
+    )
     grow_sigmas: float = 0.25  # ... is above the threshold less this many robust sigmas of the scores join it
-    max_spacing_m: float = 0.02  # coarser clouds are refused as too sparse to measure cracks
-    fit_points: int = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
+    max_spacing_m: Positive = 0.02  # coarser clouds are refused as too sparse to measure cracks
+    fit_points: Count = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
     weights: str | None = None  # CrackEmbed weights; None = the shipped ones
-    element_voxel_m: float = 0.05  # element extraction: region growing on this grid ...
-    element_radius_m: float = 0.1  # ... joining neighbours within this distance ...
-    element_angle_deg: float = 20.0  # ... whose normals differ by less than this ...
-    element_color_distance: float = 0.15  # ... and colours (RGB in 0..1) by less than this
-    element_min_points: int = 500  # elements with fewer input points are not assessed
-    dims_tolerance: float = 0.3  # picking elements by expected size: each extent within ±30 %
+    element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...
+    element_radius_m: Positive = 0.1  # ... joining neighbours within this distance ...
+    element_angle_deg: Angle = 20.0  # ... whose normals differ by less than this ...
+    element_color_distance: NonNegative = 0.15  # ... and colours (RGB in 0..1) by less than this
+    element_min_points: Count = 500  # elements with fewer input points are not assessed
+    dims_tolerance: NonNegative = 0.3  # picking elements by expected size: each extent within ±30 %
 
 
 class DriftConfig(_Section):
-    bin_m: float = 0.05
-    density_ratio: float = 1.5  # a slab bin has 50 % more points than the median of its neighbourhood
-    neighbourhood_bins: int = 24  # 1.2 m: a slab tilted 1° across a 20 m building spans 0.35 m
-    ransac_threshold_m: float = 0.02
-    ransac_iterations: int = 1000
+    bin_m: Positive = 0.05
+    density_ratio: Positive = 1.5  # a slab bin has 50 % more points than the median of its neighbourhood
+    neighbourhood_bins: Count = 24  # 1.2 m: a slab tilted 1° across a 20 m building spans 0.35 m
+    ransac_threshold_m: Positive = 0.02
+    ransac_iterations: Count = 1000
     gravity: str = "frame-z"  # frame-z | ground-plane
-    slab_merge_m: float = 0.6  # density bands closer than this (a slab's top and underside) are one slab
-    max_slab_tilt_deg: float = 20.0  # a fitted plane steeper than this is not a slab
-    min_slab_share: float = 0.2  # a slab plane has at least this share of the largest slab plane's points
-    wall_planes: int = 40  # drift: vertical planes tried per story (RANSAC, one after another)
-    wall_threshold_m: float = 0.01
-    wall_min_points: int = 150
-    wall_s_min: float = 0.05  # walls are read between these fractions of the local story height (beams
-    wall_s_max: float = 0.78  # hang below the ceiling down to about 0.85)
-    wall_end_s: float = 0.12  # a wall's foot and head are read in windows this share of the story high
-    wall_min_count: int = 3  # tall walls/columns needed for a story's drift
-    wall_outlier_m: float = 0.006  # a wall whose lean disagrees by more is left out (IRLS, Tukey)
-    slab_pad_m: float = 0.3  # a slab plane is sought this far around its density band (tilted slabs)
-    seed: int = 0
+    slab_merge_m: NonNegative = 0.6  # density bands closer than this (a slab's top and underside) are one slab
+    max_slab_tilt_deg: Annotated[float, Field(gt=0, le=90)] = 20.0  # a fitted plane steeper than this is not a slab
+    min_slab_share: Fraction = 0.2  # a slab plane has at least this share of the largest slab plane's points
+    wall_planes: NonNegativeCount = 40  # drift: vertical planes tried per story (RANSAC, one after another)
+    wall_threshold_m: Positive = 0.01
+    wall_min_points: Count = 150
+    wall_s_min: Fraction = 0.05  # walls are read between these fractions of the local story height (beams
+    wall_s_max: Fraction = 0.78  # hang below the ceiling down to about 0.85)
+    wall_end_s: Fraction = 0.12  # a wall's foot and head are read in windows this share of the story high
+    wall_min_count: Count = 3  # tall walls/columns needed for a story's drift
+    wall_outlier_m: Positive = 0.006  # a wall whose lean disagrees by more is left out (IRLS, Tukey)
+    slab_pad_m: NonNegative = 0.3  # a slab plane is sought this far around its density band (tilted slabs)
+    seed: Seed = 0
 
 
 class Config(_Section):
@@ -211,6 +227,8 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
             data = json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
         except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise InputError(f"not a valid {p.suffix.lstrip('.') or 'TOML'} config: {exc}", p) from None
+    if not isinstance(data, dict):
+        raise InputError(f"a config is a table of sections (source, map, label …), not a {type(data).__name__}", path)
     for item in overrides or []:
         key, sep, raw = item.partition("=")
         if not sep or "." not in key:
@@ -220,10 +238,29 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         except json.JSONDecodeError:
             value = raw
         section, _, name = key.partition(".")
-        data.setdefault(section, {})[name] = value
+        table = data.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise InputError(f"config {section} is a {type(table).__name__}, not a table of settings", path)
+        table[name] = value
     try:
         return Config.model_validate(data)
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(x) for x in first["loc"])
-        raise InputError(f"config {where}: {first['msg']}", path) from None
+        option = OPTION_OF.get(where)
+        named = f"{where} ({option})" if option else where
+        given = first.get("input")
+        value_text = f" (given {given!r})" if isinstance(given, int | float | str) else ""
+        raise InputError(f"config {named}: {first['msg']}{value_text}", path) from None
+
+
+# Settings the command line sets through their own options, named in errors as the user typed them.
+OPTION_OF: Final[dict[str, str]] = {
+    "source.start_s": "--start",
+    "source.end_s": "--end",
+    "source.every": "--every",
+    "source.max_scans": "--max-scans",
+    "source.topic": "--topic",
+    "label.labeller": "--labeller",
+    "cracks.resolution_m": "--resolution",
+}

@@ -18,7 +18,14 @@ class InputError(AftershockError):
 
 
 class OutputError(AftershockError):
-    """An output cannot be written (exists without --force, not writable)."""
+    """An output cannot be written (exists without --force, not writable, the disk is full).
+
+    `process_stuck`: a library thread writing it is wedged for good (Rerun's file writer after a full disk), so
+    the process cannot end normally; the command line ends it at once after printing the error."""
+
+    def __init__(self, message: str, path: str | Path | None = None, process_stuck: bool = False) -> None:
+        super().__init__(message, path)
+        self.process_stuck = process_stuck
 
 
 class DamagedLogWarning(UserWarning):

@@ -505,8 +505,15 @@ def pose_stamped_message(matrix: np.ndarray, stamp_ns: int, frame_id: str = "map
 
 
 def pose_to_matrix(pose: Any) -> np.ndarray:
-    """4 x 4 matrix from a decoded `geometry_msgs/Pose` (attributes position / orientation)."""
+    """4 x 4 matrix from a decoded `geometry_msgs/Pose` (attributes position / orientation); ValueError for
+    a pose that is none: a non-finite position, or a quaternion that is zero or not finite."""
     p, o = pose.position, pose.orientation
+    q = np.array([o.x, o.y, o.z, o.w], dtype=np.float64)
+    t = np.array([p.x, p.y, p.z], dtype=np.float64)
+    if not (np.isfinite(q).all() and np.isfinite(t).all()):
+        raise ValueError(f"the pose is not finite (position {t.tolist()}, orientation {q.tolist()})")
+    if np.linalg.norm(q) < 1e-6:
+        raise ValueError("the pose's quaternion is zero, so it is no rotation")
     m = np.eye(4)
     m[:3, :3] = quaternion_to_matrix([o.x, o.y, o.z, o.w])
     m[:3, 3] = [p.x, p.y, p.z]

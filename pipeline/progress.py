@@ -37,3 +37,8 @@ def track(
         for item in items:
             yield item
             b.update(1)
+
+
+def note(text: str) -> None:
+    """A note on stderr (stdout may carry JSON): something the tool did on its own, such as dropping points."""
+    print(f"aftershock: note: {text}", file=sys.stderr)

@@ -26,7 +26,7 @@ from threadpoolctl import threadpool_limits
 from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES
 from aftershock.pipeline.cluster import InstanceClusterer, cluster_stage
 from aftershock.pipeline.config import Config, Environment
-from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.errors import InputError, OutputError
 from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
 from aftershock.pipeline.register import MIN_POINTS, Registrar, guess_environment, register_stage
 from aftershock.pipeline.sink import Sink, Stage
@@ -84,15 +84,17 @@ def choose_labeller(cfg: Config, notice: Callable[[str], None]) -> Labeller:
 
 @contextmanager
 def _no_interrupts() -> Iterator[None]:
-    """Hold off a second Ctrl-C while the sinks finish their files."""
+    """Hold off a second Ctrl-C or SIGTERM while the sinks finish their files (which never wait for ever:
+    a sink that cannot write raises instead)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _timed_source(scans: Iterable[Scan]) -> Iterator[Frame]:
@@ -189,6 +191,7 @@ def _run(
     timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
     map_every = max(1, cfg.rerun.map_every)  # the one place that decides how often the map is re-sent
     last_map_seq: int | None = None
+    output_error: OutputError | None = None
     try:
         for sink in sinks:
             sink.begin(info)
@@ -214,22 +217,30 @@ def _run(
         except KeyboardInterrupt:
             summary.interrupted = True
             notice(f"interrupted after {summary.scans} scans; finishing the outputs")
-        on_demand_error: BaseException | None = None
+        except OutputError as exc:  # a sink cannot write (a full disk): stop, and finish every other output
+            summary.interrupted = True
+            output_error = exc
+            notice(f"stopped after {summary.scans} scans ({exc}); finishing the other outputs")
+        error: BaseException | None = output_error
         if on_final_map is not None and not summary.interrupted and len(vmap):
             try:
                 on_final_map(vmap.to_cloud(), sinks)
             except (Exception, KeyboardInterrupt) as exc:  # the run's own outputs are still finished below
-                on_demand_error = exc
+                error = exc
         with _no_interrupts():
             final = vmap.to_cloud()
-            if seqs and last_map_seq != seqs[-1]:
-                for sink in sinks:
-                    sink.map_update(final, seqs[-1])
             _fill_summary(summary, vmap, final, timings, perf_counter() - t_start)
-            for sink in sinks:
-                sink.end(summary, final)
-        if on_demand_error is not None:
-            raise on_demand_error
+            summary.skipped_messages = len(info.report.skipped)
+            summary.damaged_log = info.report.damage
+            for sink in sinks:  # one sink that cannot write does not keep the others from finishing
+                try:
+                    if seqs and last_map_seq != seqs[-1]:
+                        sink.map_update(final, seqs[-1])
+                    sink.end(summary, final)
+                except OutputError as exc:
+                    error = error or exc
+        if error is not None:
+            raise error
     finally:
         with _no_interrupts():
             _close_all(sinks)

@@ -195,6 +195,15 @@ class Story:
 
 
 @dataclass(slots=True)
+class SourceReport:
+    """What a reader got past while reading, filled as it reads: the messages it skipped (log time in ns and
+    why) and the damage that ended the log early (None: read to its end)."""
+
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+    damage: str | None = None
+
+
+@dataclass(slots=True)
 class RunInfo:
     """What the sinks need to know before the first frame."""
 
@@ -208,6 +217,7 @@ class RunInfo:
     # scans out and links the log's sensor frame to the estimated pose instead.
     raw_in_log: bool = False
     log_id: str = ""  # fingerprint of the log file, so a recording can be matched to its log
+    report: SourceReport = field(default_factory=SourceReport)  # filled by the source while the run reads it
 
 
 @dataclass(slots=True)
@@ -224,3 +234,5 @@ class RunSummary:
     scans_per_second: float = 0.0
     registration_failures: list[int] = field(default_factory=list)
     interrupted: bool = False
+    skipped_messages: int = 0  # undecodable scans or poses passed over with a warning
+    damaged_log: str | None = None  # why the log ended early (cut off or damaged), None if read to its end

@@ -16,6 +16,7 @@ interrupted run keeps every pose it computed; the map and summary are written at
 from __future__ import annotations
 
 import json
+from contextlib import suppress
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Final, TextIO
@@ -23,7 +24,7 @@ from typing import Any, Final, TextIO
 import numpy as np
 
 from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES, class_colors
-from aftershock.pipeline.cloud_io import check_output, write_cloud
+from aftershock.pipeline.cloud_io import check_output, write_atomically, write_cloud
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.pointcloud2 import matrix_to_quaternion
 from aftershock.pipeline.sink import Sink, Stage
@@ -94,6 +95,7 @@ class FileExportSink(Sink):
         self._kitti: TextIO | None = None
         self._written: set[int] = set()
         self._poses_closed = False
+        self._failed = False  # the disk refused a pose line: the map and summary are not attempted
         self.poses_written = 0
 
     def begin(self, info: RunInfo) -> None:
@@ -108,12 +110,27 @@ class FileExportSink(Sink):
             return
         assert self._tum is not None and self._kitti is not None
         self._written.add(frame.seq)
-        self._tum.write(tum_line(frame.scan.stamp_ns, pose))
-        self._kitti.write(kitti_line(pose))
+        # Flushed with each scan: after a SIGKILL or a crash the pose files hold every pose of every scan
+        # that reached the sinks (a few hundred bytes a scan; the OS still decides when they reach the disk).
+        for f, line, path in (
+            (self._tum, tum_line(frame.scan.stamp_ns, pose), self.tum_path),
+            (self._kitti, kitti_line(pose), self.kitti_path),
+        ):
+            try:
+                f.write(line)
+                f.flush()
+            except OSError as exc:
+                self._failed = True
+                self._close_poses()
+                raise OutputError(
+                    f"cannot write: {exc.strerror or exc}; the poses before stay readable", path
+                ) from None
         self.poses_written += 1
 
     def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
         self._close_poses()
+        if self._failed:
+            return
         cloud = final_map
         if cloud.class_ids is not None and cloud.colors is None:
             cloud = LabelledCloud(
@@ -130,10 +147,8 @@ class FileExportSink(Sink):
         if self._info is not None:
             data["source"] = asdict(self._info)
         data["files"] = {"map": MAP_FILE, "poses_tum": TUM_FILE, "poses_kitti": KITTI_FILE}
-        try:
-            self.summary_path.write_text(json.dumps(data, indent=2) + "\n")
-        except OSError as exc:
-            raise OutputError(f"cannot write: {exc.strerror}", self.summary_path) from None
+        text = json.dumps(data, indent=2) + "\n"
+        write_atomically(self.summary_path, lambda tmp: tmp.write_text(text))
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         if self.refined_path is not None:
@@ -148,10 +163,8 @@ class FileExportSink(Sink):
     ) -> None:
         if self.damage_path is None or report is None:
             return
-        try:
-            self.damage_path.write_text(json.dumps(report, indent=2) + "\n")
-        except OSError as exc:
-            raise OutputError(f"cannot write: {exc.strerror}", self.damage_path) from None
+        text = json.dumps(report, indent=2) + "\n"
+        write_atomically(self.damage_path, lambda tmp: tmp.write_text(text))
 
     def close(self) -> None:
         self._close_poses()
@@ -171,6 +184,7 @@ class FileExportSink(Sink):
     def _close_poses(self) -> None:
         for f in (self._tum, self._kitti):
             if f is not None:
-                f.close()
+                with suppress(OSError):  # a write that failed before was reported; the lines before it are kept
+                    f.close()
                 self._poses_closed = True
         self._tum = self._kitti = None

@@ -12,6 +12,8 @@ Ctrl-C, so what was processed stays readable.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import BinaryIO, Final
 
@@ -81,6 +83,7 @@ class McapSink(Sink):
         self._points = self._pose = 0
         self._pending: dict[int, Frame] = {}
         self._sequence = 0
+        self._failed = False  # the disk refused a write: nothing more is tried
         self.scans_written = 0
 
     def begin(self, info: RunInfo) -> None:
@@ -88,25 +91,45 @@ class McapSink(Sink):
         self._open()
 
     def stage(self, frame: Frame, stage: Stage) -> None:
+        if self._failed:
+            return
         self._pending[frame.seq] = frame
-        if stage is Stage.CLUSTERED:
-            self._write(self._pending.pop(frame.seq))
-        while len(self._pending) > MAX_PENDING:
-            self._write(self._pending.pop(min(self._pending)))
+        with self._writing():
+            if stage is Stage.CLUSTERED:
+                self._write(self._pending.pop(frame.seq))
+            while len(self._pending) > MAX_PENDING:
+                self._write(self._pending.pop(min(self._pending)))
 
     def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
-        self._flush_pending()
+        if self._failed:
+            return
+        with self._writing():
+            self._flush_pending()
 
     def close(self) -> None:
         if self._file is None or self._writer is None:
             return
         try:
-            self._flush_pending()
-            self._writer.finish()
+            if not self._failed:  # after a failed write, finishing would only fail again
+                with self._writing():
+                    self._flush_pending()
+                    self._writer.finish()
         finally:
-            self._file.close()
+            with suppress(OSError):  # the buffer could not be written out either: the write error was reported
+                self._file.close()
             self._file = None
             self._writer = None
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """OSError (a full disk, a lost mount) as one line naming the file; the messages already written stay
+        readable (the reader reads an MCAP without its summary up to the damage)."""
+        try:
+            yield
+        except OSError as exc:
+            self._failed = True
+            what = f"cannot write: {exc.strerror or exc}; what was written before stays readable"
+            raise OutputError(what, self.path) from None
 
     def _open(self) -> Writer:
         if self._writer is not None:

@@ -37,7 +37,9 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
 
 from __future__ import annotations
 
+import os
 import socket
+import time
 import uuid
 from pathlib import Path
 from typing import Any, Final
@@ -60,6 +62,12 @@ DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger tha
 SPAWN_PORT: Final = 9876
 BATCH_SECONDS: Final = 1.0
 BATCH_BYTES: Final = 16 * 2**20
+# Rerun's file writer cannot recover from a full disk: its thread dies and every later flush, disconnect and
+# even the interpreter's exit wait for ever. So the recording stops while this much room is left (a batch in
+# flight plus a scan's layers fit), and a flush that makes no progress for FLUSH_STALL_S is given up.
+MIN_FREE_BYTES: Final = 3 * BATCH_BYTES
+FLUSH_POLL_S: Final = 0.5
+FLUSH_STALL_S: Final = 10.0
 FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
 STATS_EVERY: Final = 10  # per-scan scalars go out as columns every this many scans (live plots lag by as much)
 RECORDING_ID_PREFIX: Final = "aftershock-"
@@ -281,6 +289,7 @@ class RerunSink(Sink):
         refused before its first scan leaves no empty recording behind."""
         if self._started:
             return
+        self._check_room()  # before the file is made: a full disk leaves nothing behind
         self._started = True
         if self.spawn:  # a viewer of this environment on 127.0.0.1 (the one already there is reused)
             from aftershock.sinks.rerun_viewer import start_viewer
@@ -292,6 +301,8 @@ class RerunSink(Sink):
 
     def stage(self, frame: Frame, stage: Stage) -> None:
         self._start()
+        if stage is Stage.RAW:
+            self._check_room()
         self._set_time(frame.scan)
         if stage is Stage.RAW:
             self._log_raw(frame)
@@ -387,11 +398,70 @@ class RerunSink(Sink):
         if self._stats:  # scalars of scans after `end` (or without one) still reach the file
             self._flush_stats()
         try:
-            self.rec.flush()
+            self._flush()
         except RuntimeError as exc:  # a viewer that went away or never came: the file is still finished
             self.rec.disconnect()
             raise OutputError(f"the Rerun viewer could not be reached ({exc})", self._viewer_url) from None
         self.rec.disconnect()
+
+    # ------------------------------------------------------------------------------------------ errors
+
+    def _free_bytes(self) -> int | None:
+        if self.path is None:
+            return None
+        try:
+            st = os.statvfs(self.path.parent)
+        except OSError:
+            return None
+        return st.f_bavail * st.f_frsize
+
+    def _check_room(self) -> None:
+        """Stop the recording, readable, while the disk still has room for what is in flight (see MIN_FREE_BYTES)."""
+        free = self._free_bytes()
+        if free is None or free >= MIN_FREE_BYTES or self._closed:
+            return
+        started = self.path is not None and self.path.exists()  # the file is made when the sinks are set
+        if started:
+            self.close()  # later layers go nowhere: the stream stops on this error and finishes the other outputs
+        what = "the recording was stopped here and stays readable" if started else "nothing was written"
+        raise OutputError(
+            f"the disk is nearly full ({free / 2**20:.1f} MiB free, a recording needs {MIN_FREE_BYTES // 2**20} MiB "
+            f"of room); {what}",
+            self.path,
+        )
+
+    def _flush(self) -> None:
+        """Flush, giving up with OutputError when the file writer died (it says so, or the file stops growing for
+        FLUSH_STALL_S); RuntimeError from a viewer that cannot be reached."""
+        if self.path is None:
+            self.rec.flush()
+            return
+        last_size, last_change = -1, time.monotonic()
+        while True:
+            try:
+                self.rec.flush(timeout_sec=FLUSH_POLL_S)
+                return
+            except RuntimeError as exc:
+                if "file" in str(exc).lower():  # "File-writer thread shut down prematurely"
+                    raise self._write_failed(f"{self._why()} ({exc})") from None
+                if "timed out" not in str(exc):
+                    raise
+            size = self.path.stat().st_size if self.path.exists() else 0
+            now = time.monotonic()
+            if size != last_size:
+                last_size, last_change = size, now
+            elif now - last_change > FLUSH_STALL_S:
+                raise self._write_failed(self._why(), process_stuck=True)
+
+    def _why(self) -> str:
+        free = self._free_bytes()
+        return "the disk is full" if free is not None and free < MIN_FREE_BYTES else "writing the recording failed"
+
+    def _write_failed(self, why: str, process_stuck: bool = False) -> OutputError:
+        size = self.path.stat().st_size if self.path is not None and self.path.exists() else 0
+        return OutputError(
+            f"{why}; the recording stopped at {size} bytes, Rerun reads it up to there", self.path, process_stuck
+        )
 
     # ------------------------------------------------------------------------------------------ layers
 

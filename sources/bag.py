@@ -8,19 +8,21 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Final
 
+import numpy as np
+
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
-from aftershock.pipeline.types import Scan
+from aftershock.pipeline.types import Scan, SourceReport
 from aftershock.sources.common import (
     CloudMessage,
     Damage,
     DecodedCloud,
     Event,
-    PoseMessage,
     assemble,
     check_window,
     choose_pose_topic,
     choose_topic,
+    pose_event,
     window_ns,
 )
 
@@ -102,10 +104,14 @@ def events(
                     decode = partial(_cloud, reader, raw, conn.msgtype)
                     yield CloudMessage(int(log_time), conn.topic, decode)
                 else:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                    yield PoseMessage(int(log_time), header_stamp_ns(msg) or int(log_time), pose_to_matrix(msg.pose))
+                    yield pose_event(int(log_time), conn.topic, partial(_pose, reader, raw, conn.msgtype))
     except errors as exc:
         yield Damage(f"the bag is cut off or damaged ({type(exc).__name__}: {exc})")
+
+
+def _pose(reader: Any, raw: bytes, msgtype: str) -> tuple[int, np.ndarray]:
+    msg = reader.deserialize(raw, msgtype)
+    return header_stamp_ns(msg), pose_to_matrix(msg.pose)
 
 
 def _cloud(reader: Any, raw: bytes, msgtype: str) -> DecodedCloud:
@@ -124,6 +130,7 @@ def open_bag(
     max_scans: int | None = None,
     every: int = 1,
     progress: bool = False,
+    report: SourceReport | None = None,
 ) -> Iterator[Scan]:
     """Scans of one PointCloud2 topic of a ROS 1 or ROS 2 bag (checked now, read lazily)."""
     check_window(start_s, end_s, every, max_scans)
@@ -142,4 +149,5 @@ def open_bag(
         max_scans=max_scans,
         total=cat.topics[chosen][1] if lo is None and hi is None else None,
         progress=progress,
+        report=report,
     )

@@ -18,7 +18,7 @@ import numpy as np
 from aftershock.pipeline.errors import DamagedLogWarning, InputError
 from aftershock.pipeline.pointcloud2 import Field, NoXYZError, columns_to_scan
 from aftershock.pipeline.progress import bar
-from aftershock.pipeline.types import Scan
+from aftershock.pipeline.types import Scan, SourceReport
 
 POINTCLOUD_TYPES: Final[frozenset[str]] = frozenset(
     {"sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2", "foxglove.PointCloud"}
@@ -65,7 +65,30 @@ class Damage:
     reason: str
 
 
-Event = CloudMessage | PoseMessage | Damage
+@dataclass(slots=True)
+class Skipped:
+    """A message (or a chunk of them) that cannot be read; the log goes on after it."""
+
+    log_time_ns: int
+    topic: str
+    reason: str
+
+
+Event = CloudMessage | PoseMessage | Damage | Skipped
+
+
+def pose_event(log_time_ns: int, topic: str, decode: Callable[[], tuple[int, np.ndarray]]) -> PoseMessage | Skipped:
+    """A pose message, or `Skipped` when it cannot be decoded or is no rigid pose (a zero or NaN quaternion)."""
+    try:
+        stamp_ns, matrix = decode()
+    except Exception as exc:  # any decoder failure on one message: the log goes on
+        return Skipped(log_time_ns, topic, _reason(exc))
+    return PoseMessage(log_time_ns, stamp_ns or log_time_ns, matrix)
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 # --------------------------------------------------------------------------------------------- topics
@@ -181,10 +204,16 @@ def assemble(
     max_scans: int | None = None,
     total: int | None = None,
     progress: bool = False,
+    report: SourceReport | None = None,
 ) -> Iterator[Scan]:
     """Scans from a reader's events: keep every `every`-th cloud, decode it, drop invalid points,
-    attach the ground-truth pose, number the scans, stop after `max_scans`; warn at damage."""
+    attach the ground-truth pose, number the scans, stop after `max_scans`; warn at damage.
+
+    A message that cannot be decoded is skipped with a warning naming its log time (listed in `report`);
+    only a topic where not one message decodes is an error."""
     check_window(None, None, every, max_scans)
+    report = report if report is not None else SourceReport()
+    first_failure: str | None = None
     pending: deque[Scan] = deque()  # decoded scans waiting for a pose at or after their stamp
     track = PoseTrack()
     clouds = 0
@@ -216,15 +245,23 @@ def assemble(
     with bar(total, desc=Path(str(path)).name, show=progress) as pbar:
         for ev in events:
             if isinstance(ev, Damage):
-                damage = ev.reason
+                damage = report.damage = ev.reason
                 break
+            if isinstance(ev, Skipped):
+                _skip(report, path, ev)
+                continue
             if isinstance(ev, PoseMessage):
                 track.add(ev.stamp_ns, ev.matrix)
             else:
                 clouds += 1
                 if (clouds - 1) % every:
                     continue
-                scan = _decode(ev, path)
+                try:
+                    scan = _decode(ev, path, first=seq == 0 and not pending)
+                except _Undecodable as exc:
+                    first_failure = first_failure or str(exc)
+                    _skip(report, path, Skipped(ev.log_time_ns, ev.topic, str(exc)))
+                    continue
                 if scan is None:
                     empty += 1
                     continue
@@ -241,6 +278,8 @@ def assemble(
                 return
     if damage is not None:
         warnings.warn(DamagedLogWarning(f"{path}: {damage}; read {seq} complete scans before the damage"), stacklevel=2)
+    if seq == 0 and first_failure is not None and not empty:
+        raise InputError(f"{topic}: not one point cloud could be decoded ({first_failure})", path)
     if seq == 0 and empty:
         raise InputError(f"every point of every scan on {topic} is invalid (NaN or zero)", path)
     if empty:
@@ -249,7 +288,21 @@ def assemble(
         )
 
 
-def _decode(ev: CloudMessage, path: str | Path) -> Scan | None:
+class _Undecodable(Exception):
+    """One point-cloud message that cannot be decoded (skipped by `assemble`)."""
+
+
+def _skip(report: SourceReport, path: str | Path, ev: Skipped) -> None:
+    report.skipped.append((ev.log_time_ns, ev.reason))
+    warnings.warn(
+        DamagedLogWarning(f"{path}: skipped the {ev.topic} message logged at {ev.log_time_ns} ns: {ev.reason}"),
+        stacklevel=3,
+    )
+
+
+def _decode(ev: CloudMessage, path: str | Path, first: bool = False) -> Scan | None:
+    """The scan of a cloud message; `_Undecodable` for a malformed message (InputError for a topic without
+    x/y/z when it is the first message: then no message of it can be replayed)."""
     try:
         cloud = ev.decode()
         return columns_to_scan(
@@ -260,8 +313,12 @@ def _decode(ev: CloudMessage, path: str | Path) -> Scan | None:
             log_time_ns=ev.log_time_ns,
         )
     except NoXYZError as exc:
-        raise InputError(f"{ev.topic}: {exc}", path) from None
-    except (ValueError, TypeError, AttributeError) as exc:
-        raise InputError(
-            f"{ev.topic}: cannot decode the point cloud logged at {ev.log_time_ns} ns: {exc}", path
-        ) from None
+        if first:
+            raise InputError(f"{ev.topic}: {exc}", path) from None
+        raise _Undecodable(f"cannot decode the point cloud: {exc}") from None
+    except InputError:
+        raise
+    except MemoryError:
+        raise _Undecodable("cannot decode the point cloud: it claims more memory than there is") from None
+    except Exception as exc:  # decoders raise many kinds for malformed bytes; one bad message must not end the run
+        raise _Undecodable(f"cannot decode the point cloud: {_reason(exc)}") from None

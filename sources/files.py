@@ -7,6 +7,7 @@ Files carry no time: scan k is stamped k * FILE_PERIOD_NS (a 10 Hz sensor), whic
 from __future__ import annotations
 
 import glob
+import os
 import re
 import struct
 from collections.abc import Iterator
@@ -16,7 +17,7 @@ from typing import Final
 import numpy as np
 
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.types import Scan
+from aftershock.pipeline.types import Scan, SourceReport
 from aftershock.sources.common import CloudMessage, DecodedCloud, Event, assemble, check_window, window_ns
 
 SUFFIXES: Final[tuple[str, ...]] = (".pcd", ".ply", ".bin")
@@ -52,10 +53,21 @@ def list_files(path_or_glob: str | Path) -> list[Path]:
         found = [Path(p) for p in glob.glob(text) if Path(p).is_file()]
     else:
         p = Path(text)
-        found = [p] if p.is_file() else [q for q in p.iterdir() if q.is_file()]
+        if p.is_dir():
+            try:
+                found = [q for q in p.iterdir() if q.is_file()]
+            except OSError as exc:
+                raise InputError(f"cannot list the folder ({exc.strerror})", p) from None
+        elif p.is_file():
+            found = [p]
+        else:  # a device, a pipe, a symlink to /dev/zero: reading it would never end
+            raise InputError("not a regular file or folder", p)
     files = sorted((f for f in found if f.suffix.lower() in SUFFIXES), key=_natural_key)
     if not files:
         raise InputError("nothing readable here: no .mcap, ROS bag, .pcd, .ply or KITTI .bin files", path_or_glob)
+    for f in files:  # refused now, not after minutes of work on the files before it
+        if not os.access(f, os.R_OK):
+            raise InputError("cannot read the file (permission denied)", f)
     return files
 
 
@@ -123,10 +135,16 @@ def read_pcd(path: Path) -> dict[str, np.ndarray]:
         kind = header["DATA"][0].lower()
         bases = [np.dtype("<" + _PCD_TYPES[(t, s)]) for t, s in zip(types, sizes, strict=True)]
     except (KeyError, ValueError, IndexError) as exc:
-        raise InputError(f"not a valid PCD header ({exc})", path) from None
+        raise InputError(f"not a valid PCD header ({type(exc).__name__}: {exc})", path) from None
     if not (len(names) == len(sizes) == len(types) == len(counts)):
         raise InputError("PCD header: FIELDS, SIZE, TYPE and COUNT differ in length", path)
+    if min(counts, default=0) < 1:
+        raise InputError(f"PCD header: COUNT {' '.join(map(str, counts))} has a field of no values", path)
+    if n < 0:
+        raise InputError(f"PCD header: {n} points", path)
     body = raw[pos:]
+    point_bytes = sum(b.itemsize * c for b, c in zip(bases, counts, strict=True))
+    _check_pcd_sizes(kind, body, n, point_bytes, path)
     cols: dict[str, np.ndarray] = {}
     try:
         if kind == "ascii":
@@ -161,15 +179,39 @@ def read_pcd(path: Path) -> dict[str, np.ndarray]:
     return cols
 
 
+_LZF_MAX_RATIO: Final[int] = 88  # LZF's best case: a 3-byte back reference expands to 264 bytes
+
+
+def _check_pcd_sizes(kind: str, body: bytes, n: int, point_bytes: int, path: Path) -> None:
+    """The sizes a PCD header declares, against the bytes the file holds, before anything is allocated: a
+    138-byte file claiming gigabytes of points is refused at once."""
+    if kind == "binary" and len(body) < n * point_bytes:
+        raise InputError(f"PCD declares {n} points ({n * point_bytes} bytes) but holds {len(body)} bytes", path)
+    if kind != "binary_compressed":
+        return
+    if len(body) < 8:
+        raise InputError("PCD binary_compressed data has no size header", path)
+    packed, size = struct.unpack_from("<II", body)
+    if size != n * point_bytes:
+        raise InputError(f"PCD declares {n} points of {point_bytes} bytes but {size} uncompressed bytes", path)
+    if packed > len(body) - 8:
+        raise InputError(f"PCD declares {packed} compressed bytes but holds {len(body) - 8}", path)
+    if size > packed * _LZF_MAX_RATIO + 64:
+        raise InputError(f"PCD claims {size} bytes from {packed} compressed ones, more than LZF can give", path)
+
+
 # --------------------------------------------------------------------------------------------- PLY, KITTI
 
 
 def read_ply(path: Path) -> dict[str, np.ndarray]:
     from plyfile import PlyData, PlyParseError
 
+    from aftershock.pipeline.cloud_io import check_ply_body
+
+    check_ply_body(path)
     try:
         vertex = PlyData.read(str(path))["vertex"].data
-    except (PlyParseError, KeyError, ValueError, EOFError) as exc:
+    except (PlyParseError, KeyError, ValueError, EOFError, UnicodeDecodeError) as exc:
         raise InputError(f"not a readable PLY point cloud ({exc})", path) from None
     return {name: np.asarray(vertex[name]) for name in vertex.dtype.names}
 
@@ -183,14 +225,21 @@ def read_kitti_bin(path: Path) -> dict[str, np.ndarray]:
 
 
 def read_file(path: Path) -> dict[str, np.ndarray]:
-    """Columns of one point-cloud file, by its suffix."""
+    """Columns of one point-cloud file, by its suffix; InputError naming the file for anything unreadable."""
     suffix = path.suffix.lower()
-    if suffix == ".pcd":
-        return read_pcd(path)
-    if suffix == ".ply":
-        return read_ply(path)
-    if suffix == ".bin":
-        return read_kitti_bin(path)
+    if not path.is_file():
+        raise InputError("not a regular file", path)
+    try:
+        if suffix == ".pcd":
+            return read_pcd(path)
+        if suffix == ".ply":
+            return read_ply(path)
+        if suffix == ".bin":
+            return read_kitti_bin(path)
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
+    except MemoryError:
+        raise InputError("the file claims more points than fit in memory", path) from None
     raise InputError(f"unknown point-cloud file type {suffix!r}", path)
 
 
@@ -219,6 +268,7 @@ def open_files(
     max_scans: int | None = None,
     every: int = 1,
     progress: bool = False,
+    report: SourceReport | None = None,
 ) -> Iterator[Scan]:
     """Scans from a folder, glob or single point-cloud file. `topic`/`pose_topic` do not apply to files."""
     del topic, pose_topic
@@ -234,4 +284,5 @@ def open_files(
         max_scans=max_scans,
         total=len(files) if lo is None and hi is None else None,
         progress=progress,
+        report=report,
     )

@@ -8,6 +8,7 @@ stream up to the damage: every complete message before it is used, then a `Damag
 from __future__ import annotations
 
 import hashlib
+import heapq
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -15,25 +16,28 @@ from functools import partial
 from pathlib import Path
 from typing import IO, Any, Final
 
+import numpy as np
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 from aftershock.pipeline.progress import bar
-from aftershock.pipeline.types import Scan
+from aftershock.pipeline.types import Scan, SourceReport
 from aftershock.sources.common import (
     CloudMessage,
     Damage,
     DecodedCloud,
     Event,
-    PoseMessage,
+    Skipped,
     assemble,
     check_window,
     choose_pose_topic,
     choose_topic,
+    pose_event,
     window_ns,
 )
 from aftershock.sources.foxglove import decode_foxglove_pointcloud
@@ -180,7 +184,7 @@ def read_catalog(path: Path, progress: bool = False) -> McapCatalog:
 
 
 def _scan_stream(fh: IO[bytes], cat: McapCatalog, progress: bool) -> None:
-    """Fill a catalog by reading every record up to the end or the damage."""
+    """Fill a catalog by reading every record up to the end or the damage (corrupt chunks are passed over)."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     counts: dict[int, int] = {}
@@ -189,28 +193,31 @@ def _scan_stream(fh: IO[bytes], cat: McapCatalog, progress: bool) -> None:
     try:
         with bar(size, desc=f"{cat.path.name} (no index)", unit="B", show=progress) as pbar:
             last = 0
-            for record in StreamReader(fh, skip_magic=False, record_size_limit=_RECORD_LIMIT).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
-                    t = record.log_time
-                    cat.start_ns = t if cat.start_ns is None else min(cat.start_ns, t)
-                    cat.end_ns = t if cat.end_ns is None else max(cat.end_ns, t)
-                    pos = fh.tell()
-                    pbar.update(pos - last)
-                    last = pos
-                elif hasattr(record, "profile"):
-                    cat.profile = record.profile
+            reader = StreamReader(fh, skip_magic=False, emit_chunks=True, record_size_limit=_RECORD_LIMIT)
+            for outer in reader.records:
+                try:
+                    inner = _chunk_records(outer, fh.tell()) if isinstance(outer, Chunk) else [outer]
+                except _BadChunk:
+                    inner = []
+                for record in inner:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record
+                    elif isinstance(record, Message):
+                        counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
+                        t = record.log_time
+                        cat.start_ns = t if cat.start_ns is None else min(cat.start_ns, t)
+                        cat.end_ns = t if cat.end_ns is None else max(cat.end_ns, t)
+                    elif hasattr(record, "profile"):
+                        cat.profile = record.profile
+                pos = fh.tell()
+                pbar.update(pos - last)
+                last = pos
     except DAMAGE_ERRORS as exc:
         cat.damage = damage_reason(exc, fh.tell(), size)
     for cid, channel in channels.items():
         _add_topic(cat, channel, schemas.get(channel.schema_id), counts.get(cid, 0))
-
-
-# --------------------------------------------------------------------------------------------- messages
 
 
 class _Decoders:
@@ -249,23 +256,95 @@ def _decode_cloud(decoder: Callable[[bytes], Any], data: bytes, schema_name: str
     return DecodedCloud(cloud.columns, header_stamp_ns(msg), str(msg.header.frame_id), cloud.fields, cloud.height)
 
 
-def _stream_messages(
-    fh: IO[bytes], topics: set[str], lo: int | None, hi: int | None
-) -> Iterator[tuple[Schema | None, Channel, Message]]:
+class _BadChunk(Exception):
+    """A chunk whose bytes do not decompress or do not match their CRC; `where` is its file offset."""
+
+    def __init__(self, where: int, start_ns: int, exc: BaseException) -> None:
+        super().__init__(f"the chunk at byte {where} is corrupt ({_reason(exc)}); its messages are skipped")
+        self.start_ns = start_ns
+
+
+def _reason(exc: BaseException) -> str:
+    detail = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return f"{type(exc).__name__}{': ' + detail if detail else ''}"
+
+
+def _chunk_records(chunk: Chunk, where: int) -> list[Any]:
+    """The records of a chunk, its CRC checked (a writer that left it 0 chose not to have one)."""
+    try:
+        return breakup_chunk(chunk, validate_crc=True)
+    except (CRCValidationError, *DAMAGE_ERRORS) as exc:
+        raise _BadChunk(where, chunk.message_start_time, exc) from None
+
+
+_Item = tuple[Schema | None, Channel, Message] | _BadChunk
+
+
+def _stream_messages(fh: IO[bytes], topics: set[str], lo: int | None, hi: int | None) -> Iterator[_Item]:
+    """Messages of the wanted topics in file order, reading every record; corrupt chunks come as `_BadChunk`."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    for record in StreamReader(fh, skip_magic=False, record_size_limit=_RECORD_LIMIT).records:
-        if isinstance(record, Schema):
-            schemas[record.id] = record
-        elif isinstance(record, Channel):
-            channels[record.id] = record
-        elif isinstance(record, Message):
-            channel = channels.get(record.channel_id)
-            if channel is None or channel.topic not in topics:
+
+    def wanted(record: Message) -> Channel | None:
+        channel = channels.get(record.channel_id)
+        if channel is None or channel.topic not in topics:
+            return None
+        if (lo is not None and record.log_time < lo) or (hi is not None and record.log_time >= hi):
+            return None
+        return channel
+
+    reader = StreamReader(fh, skip_magic=False, emit_chunks=True, record_size_limit=_RECORD_LIMIT)
+    for record in reader.records:
+        if isinstance(record, Chunk):
+            try:
+                inner = _chunk_records(record, fh.tell())
+            except _BadChunk as bad:
+                yield bad
                 continue
-            if (lo is not None and record.log_time < lo) or (hi is not None and record.log_time >= hi):
+        else:
+            inner = [record]
+        for rec in inner:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Message) and (channel := wanted(rec)) is not None:
+                yield schemas.get(channel.schema_id), channel, rec
+
+
+def _indexed_messages(fh: IO[bytes], topics: set[str], lo: int | None, hi: int | None) -> Iterator[_Item]:
+    """Messages of the wanted topics in log-time order through the chunk index (as `SeekingReader` reads
+    them), each chunk's CRC checked: a corrupt chunk comes as `_BadChunk` and the rest is read."""
+    summary = SeekingReader(fh, record_size_limit=_RECORD_LIMIT).get_summary()
+    assert summary is not None
+    wanted_ids = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
+    heap: list[tuple[int, int, int, Any]] = []
+    for ci in summary.chunk_indexes:
+        if not wanted_ids & set(ci.message_index_offsets):
+            continue
+        if (lo is not None and ci.message_end_time < lo) or (hi is not None and ci.message_start_time >= hi):
+            continue
+        heapq.heappush(heap, (ci.message_start_time, ci.chunk_start_offset, -1, ci))
+    while heap:
+        _, offset, index, item = heapq.heappop(heap)
+        if index >= 0:
+            yield item
+            continue
+        fh.seek(offset + 1 + 8)
+        chunk = Chunk.read(ReadDataStream(fh))
+        try:
+            records = _chunk_records(chunk, offset)
+        except _BadChunk as bad:
+            yield bad
+            continue
+        for k, rec in enumerate(records):
+            if not isinstance(rec, Message) or rec.channel_id not in wanted_ids:
                 continue
-            yield schemas.get(channel.schema_id), channel, record
+            if (lo is not None and rec.log_time < lo) or (hi is not None and rec.log_time >= hi):
+                continue
+            channel = summary.channels[rec.channel_id]
+            schema = summary.schemas.get(channel.schema_id) if channel.schema_id else None
+            heapq.heappush(heap, (rec.log_time, offset, k, (schema, channel, rec)))
 
 
 def events(
@@ -275,31 +354,34 @@ def events(
     lo: int | None = None,
     hi: int | None = None,
 ) -> Iterator[Event]:
-    """Cloud (lazily decoded), pose and damage events of the given topics in log-time order."""
+    """Cloud (lazily decoded), pose, skipped and damage events of the given topics in log-time order."""
     decoders = _Decoders()
     topics = cloud_topics | ({pose_topic} if pose_topic else set())
     with cat.path.open("rb") as fh:
         try:
-            if cat.indexed:
-                reader = SeekingReader(fh, record_size_limit=_RECORD_LIMIT)
-                messages = reader.iter_messages(topics=sorted(topics), starting_at=lo, ending_before=hi)
-            else:
-                messages = _stream_messages(fh, topics, lo, hi)
-            for schema, channel, message in messages:
+            reader = _indexed_messages if cat.indexed else _stream_messages
+            for item in reader(fh, topics, lo, hi):
+                if isinstance(item, _BadChunk):
+                    yield Skipped(item.start_ns, "(chunk)", str(item))
+                    continue
+                schema, channel, message = item
                 decoder = decoders.get(schema, channel)
                 if channel.topic in cloud_topics:
                     name = schema.name if schema is not None else ""
                     decode = partial(_decode_cloud, decoder, message.data, name)
                     yield CloudMessage(message.log_time, channel.topic, decode)
                 else:
-                    pose = decoder(message.data)
-                    stamp = header_stamp_ns(pose) or message.log_time
-                    yield PoseMessage(message.log_time, stamp, pose_to_matrix(pose.pose))
+                    yield pose_event(message.log_time, channel.topic, partial(_decode_pose, decoder, message.data))
         except DAMAGE_ERRORS as exc:
             yield Damage(damage_reason(exc, fh.tell()))
             return
     if not cat.indexed and cat.damage is not None:
         yield Damage(cat.damage)
+
+
+def _decode_pose(decoder: Callable[[bytes], Any], data: bytes) -> tuple[int, np.ndarray]:
+    pose = decoder(data)
+    return header_stamp_ns(pose), pose_to_matrix(pose.pose)
 
 
 def open_mcap(
@@ -312,8 +394,10 @@ def open_mcap(
     max_scans: int | None = None,
     every: int = 1,
     progress: bool = False,
+    report: SourceReport | None = None,
 ) -> Iterator[Scan]:
-    """Scans of one point-cloud topic of an MCAP file (checked now, read lazily)."""
+    """Scans of one point-cloud topic of an MCAP file (checked now, read lazily); what was skipped and
+    the damage, if any, go into `report` as it reads."""
     check_window(start_s, end_s, every, max_scans)
     cat = read_catalog(path, progress=progress)
     chosen = choose_topic(cat.types, topic, path)
@@ -329,4 +413,5 @@ def open_mcap(
         max_scans=max_scans,
         total=total,
         progress=progress,
+        report=report,
     )

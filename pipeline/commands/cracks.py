@@ -12,6 +12,7 @@ import typer
 
 from aftershock.pipeline.config import load_config
 from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.progress import note
 
 
 def parse_box(text: str) -> np.ndarray:
@@ -63,15 +64,20 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (nothing else on stdout)."),
     ) -> None:
         """Detect cracks (unsupervised), measure each one on its own plane, and score against a mask."""
-        from aftershock.pipeline.cloud_io import check_output, read_cloud
+        from aftershock.pipeline.cloud_io import check_output, finite_points, read_cloud, write_atomically
         from aftershock.pipeline.damage.components import in_box
         from aftershock.pipeline.damage.report import find_cracks
 
         cfg = load_config(config, set_)
+        if resolution is not None and not (np.isfinite(resolution) and resolution > 0):
+            raise InputError(f"--resolution must be a positive number of metres, not {resolution}")
         if report is not None:
-            check_output(report, force)
+            check_output(report, force, inputs=[p for p in (input, truth) if p is not None])
         cloud = read_cloud(input)
         mask = load_mask(truth, len(cloud)) if truth is not None else None
+        # Non-finite vertices are dropped here, at the input, so no analysis below ever meets one.
+        cloud, kept = finite_points(cloud, input, note)
+        mask = mask[kept] if mask is not None else None
         if box is not None:
             keep = in_box(cloud.points, parse_box(box))
             if len(keep) == 0:
@@ -84,7 +90,8 @@ def register(app: typer.Typer) -> None:
             raise InputError(str(exc), input) from None
         out = {"input": str(input)} | result.to_json()
         if report is not None:
-            report.write_text(json.dumps(out, indent=2))
+            text = json.dumps(out, indent=2)
+            write_atomically(report, lambda tmp: tmp.write_text(text))
         if as_json:
             print(json.dumps(out, indent=2))
             return

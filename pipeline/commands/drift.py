@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import typer
 
 from aftershock.pipeline.config import load_config
+from aftershock.pipeline.progress import note
 
 
 def register(app: typer.Typer) -> None:
@@ -22,7 +24,7 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (nothing else on stdout)."),
     ) -> None:
         """Drift (mm) and tilt (degrees) of every story slab against the lowest one."""
-        from aftershock.pipeline.cloud_io import read_cloud
+        from aftershock.pipeline.cloud_io import finite_points, read_cloud
         from aftershock.pipeline.damage.drift import Gravity, measure_drift
         from aftershock.pipeline.damage.report import story_json
         from aftershock.pipeline.errors import InputError
@@ -33,7 +35,10 @@ def register(app: typer.Typer) -> None:
                 raise InputError(f"--gravity {gravity!r}: choose frame-z or ground-plane")
             sets.append(f"drift.gravity={gravity}")
         cfg = load_config(config, sets)
-        cloud = read_cloud(input)
+        cloud, _ = finite_points(read_cloud(input), input, note)
+        extent = np.ptp(cloud.points, axis=0) if len(cloud) else np.zeros(3)
+        if float(extent.max()) <= 0:
+            raise InputError(f"all {len(cloud)} points lie at one spot; there are no slabs to find", input)
         result = measure_drift(cloud.points, cfg.drift)
         out = {
             "input": str(input),
@@ -51,5 +56,5 @@ def register(app: typer.Typer) -> None:
                 f"total {s.drift_mm:.1f} mm; tilt x {s.tilt_x_deg:+.3f} y {s.tilt_y_deg:+.3f} "
                 f"total {s.tilt_deg:.3f} deg ({s.num_points} points)"
             )
-        for note in result.notes:
-            print(f"  note: {note}")
+        for text in result.notes:
+            print(f"  note: {text}")

@@ -10,6 +10,7 @@ import numpy as np
 import typer
 
 from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.progress import note
 
 
 def register(app: typer.Typer) -> None:
@@ -31,7 +32,7 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the results as JSON (nothing else on stdout)."),
     ) -> None:
         """Re-segment a cloud into objects by learnt region growing."""
-        from aftershock.pipeline.cloud_io import check_output, read_cloud, write_cloud
+        from aftershock.pipeline.cloud_io import check_output, finite_points, read_cloud, write_cloud
         from aftershock.pipeline.config import load_config
         from aftershock.pipeline.refine import baseline_cloud, refine_cloud, scores
         from aftershock.pipeline.refine.baselines import available
@@ -45,8 +46,8 @@ def register(app: typer.Typer) -> None:
         if cfg.score not in ("ml", "np"):
             raise InputError(f"unknown score {cfg.score!r} (ml or np)")
         if out is not None:
-            check_output(out, force)
-        cloud = read_cloud(input)
+            check_output(out, force, inputs=[input])
+        cloud, _ = finite_points(read_cloud(input), input, note)
         if truth and cloud.instance_ids is None:
             raise InputError("--truth needs an instance_id vertex property, and this file has none", input)
         result = refine_cloud(cloud, cfg)

@@ -24,7 +24,7 @@ from aftershock.pipeline.label import FALLBACK_LABELLER, LABELLERS
 from aftershock.pipeline.progress import enabled
 from aftershock.pipeline.sink import Sink
 from aftershock.pipeline.stream import StreamResult, run_stream
-from aftershock.pipeline.types import LabelledCloud, RunInfo, Scan
+from aftershock.pipeline.types import LabelledCloud, RunInfo, Scan, SourceReport
 
 LABELLER_HELP: Final = (
     f"One of: {', '.join(LABELLERS)}. Default mcpnet; the {FALLBACK_LABELLER} baseline if its weights are missing."
@@ -66,10 +66,12 @@ def resolve_source(source: str | None) -> str:
 
 
 def open_scans(source: str, cfg: Config, quiet: bool) -> tuple[Iterator[Scan], RunInfo]:
-    """The scans of a source (errors in the input raise here) and what the sinks need to know about it."""
+    """The scans of a source (errors in the input raise here) and what the sinks need to know about it;
+    `info.report` fills with the messages the reader skips and the damage that ends the log, if any."""
     from aftershock import sources
 
     desc = sources.describe(source, cfg.source.topic)
+    report = SourceReport()
     scans = sources.open(
         source,
         topic=cfg.source.topic,
@@ -79,6 +81,7 @@ def open_scans(source: str, cfg: Config, quiet: bool) -> tuple[Iterator[Scan], R
         max_scans=cfg.source.max_scans,
         every=cfg.source.every,
         progress=enabled(quiet),
+        report=report,
     )
     info = RunInfo(
         source=source,
@@ -87,8 +90,23 @@ def open_scans(source: str, cfg: Config, quiet: bool) -> tuple[Iterator[Scan], R
         log_start_ns=desc.log_start_ns,
         raw_in_log=desc.viewer_reads,
         log_id=desc.log_id,
+        report=report,
     )
     return scans, info
+
+
+def input_files(source: str) -> list[Path]:
+    """The files a run reads (the log, or a folder's point-cloud files), which no output may replace."""
+    from aftershock import sources
+
+    path = Path(source)
+    if source.startswith(sources.SIM_SCHEME):
+        return []
+    if path.is_dir() or sources.kind_of(source) is sources.SourceKind.FILES:
+        from aftershock.sources.files import list_files
+
+        return [path, *list_files(source)] if path.exists() else list_files(source)
+    return [path]
 
 
 def make_sinks(
@@ -101,8 +119,19 @@ def make_sinks(
     force: bool,
     refine: bool = False,
     damage: bool = False,
+    inputs: Sequence[Path] = (),
 ) -> list[Sink]:
-    """The sinks asked for; each checks its output path (exists without --force, not writable) right away."""
+    """The sinks asked for; each checks its output path (exists without --force, not writable) right away,
+    and no output may be one of the `inputs`, even with --force."""
+    from aftershock.pipeline.cloud_io import check_output
+
+    for out in (save, mcap_out):
+        if out is not None:
+            check_output(out, force, inputs)
+    if export is not None:
+        for name in ("map.ply", "poses_tum.txt", "poses_kitti.txt", "summary.json", "refined.ply", "damage.json"):
+            if (export / name).exists():
+                check_output(export / name, True, inputs)
     sinks: list[Sink] = []
     try:
         if save is not None or spawn or connect is not None:
@@ -124,7 +153,7 @@ def make_sinks(
     return sinks
 
 
-def result_dict(result: StreamResult, outputs: dict[str, str]) -> dict[str, Any]:
+def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceReport | None = None) -> dict[str, Any]:
     s = result.summary
     out: dict[str, Any] = {
         "scans": s.scans,
@@ -137,6 +166,10 @@ def result_dict(result: StreamResult, outputs: dict[str, str]) -> dict[str, Any]
         "mean_timings_ms": s.mean_timings_ms,
         "registration_failures": s.registration_failures,
         "interrupted": s.interrupted,
+        "skipped_messages": s.skipped_messages,
+        "skipped_log_times_ns": [t for t, _ in report.skipped] if report is not None else [],
+        "damaged_log": s.damaged_log is not None,
+        "damage": s.damaged_log,
         "environment": result.environment.value,
         "labeller": result.labeller,
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
@@ -239,6 +272,10 @@ def print_human(result: StreamResult, outputs: dict[str, str], info: RunInfo | N
             f"trajectory error: ATE {t.ate_rmse_m:.3f} m RMSE over {t.path_length_m:.1f} m, "
             f"RPE {t.rpe_trans_m:.3f} m / {t.rpe_rot_deg:.2f}° per scan, drift {t.drift_percent:.2f} %"
         )
+    if s.skipped_messages:
+        print(f"skipped {s.skipped_messages} messages that could not be decoded (see the warnings)")
+    if s.damaged_log:
+        print(f"the log ended early: {s.damaged_log}")
     if "rerun" in outputs:
         if info is not None and info.raw_in_log:
             print(f"open it with its log: aftershock view {info.source} {outputs['rerun']}")
@@ -305,12 +342,12 @@ def register(app: typer.Typer) -> None:
         scans, info = open_scans(src, cfg, quiet)
         notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
         on_demand = OnDemand(cfg, refine, damage, box, notice) if refine or damage else None
-        sinks = make_sinks(cfg, save, spawn, connect, mcap_out, export, force, refine, damage)
+        sinks = make_sinks(cfg, save, spawn, connect, mcap_out, export, force, refine, damage, input_files(src))
         outputs = {k: str(v) for k, v in (("rerun", save), ("mcap", mcap_out), ("export", export)) if v is not None}
         result = run_stream(scans, cfg, sinks, info, notice, on_demand)
         extra = on_demand.results if on_demand is not None else {}
         if as_json:
-            print(json.dumps(result_dict(result, outputs) | extra, indent=2, default=_jsonable))
+            print(json.dumps(result_dict(result, outputs, info.report) | extra, indent=2, default=_jsonable))
         else:
             print_human(result, outputs, info)
             print_on_demand(extra)

@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Simulate a robot mission through a procedural building: labelled scans and true poses."""
-        from aftershock.pipeline.cloud_io import check_output, write_cloud
+        from aftershock.pipeline.cloud_io import check_output, write_atomically, write_cloud
         from aftershock.sources.simulated import SimSpec, check_spec, make_mission
         from aftershock.sources.simulator.recording import truth_to_dict, write_mission
 
@@ -90,7 +90,8 @@ def register(app: typer.Typer) -> None:
                 static_out=str(static_out), static_points=len(cloud), static_seconds=round(time.perf_counter() - t2, 3)
             )
         if truth_out is not None:
-            check_output(truth_out, force).write_text(json.dumps(truth_to_dict(mission.scene.truth), indent=1))
+            text = json.dumps(truth_to_dict(mission.scene.truth), indent=1)
+            write_atomically(check_output(truth_out, force), lambda tmp: tmp.write_text(text))
             summary["truth_out"] = str(truth_out)
         if as_json:
             print(json.dumps(summary, indent=2))

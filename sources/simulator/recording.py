@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -187,8 +188,11 @@ def write_mission(
                 t0, t0, "truth.json", "application/json", json.dumps(truth_to_dict(truth), sort_keys=True).encode()
             )
         w.finish()
+        f.flush()
     except OSError as exc:
-        raise OutputError(f"cannot write: {exc.strerror}", p) from None
+        what = f"cannot write: {exc.strerror or exc}; the scans written before stay readable"
+        raise OutputError(what, p) from None
     finally:
-        f.close()
+        with suppress(OSError):  # the buffer could not reach the disk either: the write error is reported
+            f.close()
     return stats
