@@ -10,6 +10,7 @@ data with `np.frombuffer`, row by row when `row_step` carries padding.
 from __future__ import annotations
 
 import struct
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
@@ -185,7 +186,10 @@ def structured_dtype(fields: Sequence[Field], point_step: int, big_endian: bool 
     names, formats, offsets = [], [], []
     seen: set[str] = set()
     for f in fields:
-        if f.name in seen or not f.name:  # duplicate or empty names (some drivers pad with unnamed fields)
+        if f.name in seen:  # the first is used, as PCL does; said once per field name and run
+            warnings.warn(f"PointCloud2 field {f.name!r} is declared more than once; the first is used", stacklevel=2)
+            continue
+        if not f.name:  # some drivers pad with unnamed fields
             continue
         seen.add(f.name)
         base = np.dtype(order + _NUMPY_OF[f.datatype])

@@ -71,12 +71,13 @@ def resolve_environment(cfg: Config, first: Scan) -> Environment:
 
 def choose_labeller(cfg: Config, notice: Callable[[str], None]) -> Labeller:
     """The configured labeller; the default MCPNet falls back to the baseline (with a notice) when it is
-    not available, a labeller asked for by name does not."""
+    not available, a labeller asked for by name, or with a weights file named, does not."""
     name = cfg.label.labeller
     try:
         return make_labeller(name, cfg)
     except InputError as exc:
-        if "labeller" in cfg.label.model_fields_set or name == FALLBACK_LABELLER:
+        asked = {"labeller", "weights"} & cfg.label.model_fields_set
+        if asked or cfg.label.weights is not None or name == FALLBACK_LABELLER:
             raise
         notice(f"{exc}; using the {FALLBACK_LABELLER} baseline instead")
         return make_labeller(FALLBACK_LABELLER, cfg)

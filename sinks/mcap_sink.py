@@ -135,7 +135,9 @@ class McapSink(Sink):
         if self._writer is not None:
             return self._writer
         try:
-            self._file = open(self.path, "wb")  # noqa: SIM115 (kept open for the whole run)
+            # Unbuffered: the writer hands over whole chunks, so each reaches the file at once and a killed run
+            # keeps every finished chunk (read up to the cut); only the summary is written in small pieces.
+            self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115 (kept open for the whole run)
         except OSError as exc:
             raise OutputError(f"cannot write: {exc.strerror}", self.path) from None
         writer = Writer(self._file, compression=CompressionType.ZSTD)

@@ -31,6 +31,7 @@ from aftershock.sources.common import (
     Damage,
     DecodedCloud,
     Event,
+    Skipped,
     choose_topic,
 )
 
@@ -108,7 +109,7 @@ def _valid_count(cols: dict[str, np.ndarray]) -> int | None:
 
 
 def summarise_clouds(
-    evs: Iterable[Event], types: dict[str, str], total: int | None, progress: bool, name: str
+    evs: Iterable[Event], types: dict[str, str], total: int | None, progress: bool, name: str, path: str = ""
 ) -> tuple[list[CloudTopicSummary], str | None]:
     """Walk cloud events, decoding each once; returns per-topic summaries and the damage, if any."""
     summaries = {t: CloudTopicSummary(t, ty) for t, ty in sorted(types.items()) if ty in POINTCLOUD_TYPES}
@@ -119,10 +120,13 @@ def summarise_clouds(
             if isinstance(ev, Damage):
                 damage = ev.reason
                 break
+            if isinstance(ev, Skipped):  # a corrupt chunk: what it held is not counted
+                warnings.warn(DamagedLogWarning(f"{path or name}: {ev.reason}"), stacklevel=2)
+                continue
             if not isinstance(ev, CloudMessage):
                 continue
             s = summaries[ev.topic]
-            cloud = ev.decode()
+            cloud = _decode(ev, path or name)
             if s.scans == 0:
                 s.fields = _field_summaries(cloud)
                 names = list(cloud.columns)
@@ -150,6 +154,25 @@ def summarise_clouds(
             s.points_min, s.points_max = int(c.min()), int(c.max())
             s.points_median, s.points_total = float(np.median(c)), int(c.sum())
     return list(summaries.values()), damage
+
+
+def _decode(ev: CloudMessage, name: str) -> DecodedCloud:
+    """A cloud message decoded, or InputError naming the message: `info` reports what a log holds, and a
+    message that does not decode is a fact about the log to fix (the run skips it with a warning)."""
+    try:
+        return ev.decode()
+    except InputError:
+        raise
+    except MemoryError:
+        what = f"{ev.topic}: the message logged at {ev.log_time_ns} ns claims more memory than there is"
+        raise InputError(what, name) from None
+    except Exception as exc:  # decoders raise many kinds for malformed bytes
+        detail = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        raise InputError(
+            f"{ev.topic}: the message logged at {ev.log_time_ns} ns cannot be decoded ({type(exc).__name__}"
+            f"{': ' + detail if detail else ''}); `run` skips it",
+            name,
+        ) from None
 
 
 def _cloud_topics(types: dict[str, str], topic: str | None, path: str | Path) -> set[str]:
@@ -213,10 +236,12 @@ def inspect(path_or_glob: str | Path, progress: bool = False, topic: str | None 
         total = len(files)
         evs = file_events(files, None, None)
         start, end, duration = 0, (len(files) - 1) * FILE_PERIOD_NS, (len(files) - 1) * FILE_PERIOD_NS * 1e-9
+        clouds = {FILES_TOPIC}
     else:
         raise InputError("`info` reads logs and files; a simulator URI has nothing to inspect", path_or_glob)
-        clouds = {FILES_TOPIC}
-    point_clouds, damage = summarise_clouds(evs, {t: types[t] for t in clouds}, total, progress, name)
+    point_clouds, damage = summarise_clouds(
+        evs, {t: types[t] for t in clouds}, total, progress, name, str(path_or_glob)
+    )
     if kind is SourceKind.FILES:
         point_clouds[0].type = topics[0].type
     _check_replayable(point_clouds, path_or_glob)
