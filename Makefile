@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test lint bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-all train screenshot clean
+.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -25,6 +25,11 @@ demo: setup
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/pytest -q
+
+# Faults and hostile input on their own (also part of `make test`): full disks through a small tmpfs (needs root,
+# skipped otherwise), SIGINT/SIGTERM/SIGKILL mid-run, truncated and corrupted logs, hostile headers and settings.
+test-faults: setup
+	$(BIN)/pytest -q -rs tests/test_faults.py
 
 lint: setup
 	$(BIN)/ruff check .
