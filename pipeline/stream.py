@@ -232,7 +232,8 @@ def _run(
             final = vmap.to_cloud()
             _fill_summary(summary, vmap, final, timings, perf_counter() - t_start)
             summary.skipped_messages = len(info.report.skipped)
-            summary.damaged_log = info.report.damage
+            summary.damaged_log = info.report.damage is not None
+            summary.damage = info.report.damage
             for sink in sinks:  # one sink that cannot write does not keep the others from finishing
                 try:
                     if seqs and last_map_seq != seqs[-1]:

@@ -234,5 +234,6 @@ class RunSummary:
     scans_per_second: float = 0.0
     registration_failures: list[int] = field(default_factory=list)
     interrupted: bool = False
-    skipped_messages: int = 0  # undecodable scans or poses passed over with a warning
-    damaged_log: str | None = None  # why the log ended early (cut off or damaged), None if read to its end
+    skipped_messages: int = 0  # undecodable scans or poses (or corrupt chunks) passed over with a warning
+    damaged_log: bool = False  # the log ended early: cut off or damaged
+    damage: str | None = None  # why it ended early

@@ -135,9 +135,7 @@ class McapSink(Sink):
         if self._writer is not None:
             return self._writer
         try:
-            # Unbuffered: the writer hands over whole chunks, so each reaches the file at once and a killed run
-            # keeps every finished chunk (read up to the cut); only the summary is written in small pieces.
-            self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115 (kept open for the whole run)
+            self._file = open(self.path, "wb")  # noqa: SIM115 (kept open for the whole run)
         except OSError as exc:
             raise OutputError(f"cannot write: {exc.strerror}", self.path) from None
         writer = Writer(self._file, compression=CompressionType.ZSTD)
@@ -166,6 +164,10 @@ class McapSink(Sink):
         if pose is not None:
             self._add(self._pose, log_time, serialize_pose_stamped(pose_stamped_message(pose, scan.stamp_ns)))
         self.scans_written += 1
+        # Whatever the writer handed over (the header, each finished chunk) reaches the file now, so a killed
+        # run keeps every finished chunk, read up to the cut.
+        assert self._file is not None
+        self._file.flush()
 
     def _add(self, channel: int, log_time: int, data: bytes) -> None:
         assert self._writer is not None

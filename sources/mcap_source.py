@@ -365,7 +365,10 @@ def events(
                     yield Skipped(item.start_ns, "(chunk)", str(item))
                     continue
                 schema, channel, message = item
-                decoder = decoders.get(schema, channel)
+                try:
+                    decoder = decoders.get(schema, channel)
+                except InputError as exc:  # a topic that cannot be decoded at all: named with the file
+                    raise InputError(str(exc), cat.path) from None
                 if channel.topic in cloud_topics:
                     name = schema.name if schema is not None else ""
                     decode = partial(_decode_cloud, decoder, message.data, name)

@@ -168,8 +168,8 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "interrupted": s.interrupted,
         "skipped_messages": s.skipped_messages,
         "skipped_log_times_ns": [t for t, _ in report.skipped] if report is not None else [],
-        "damaged_log": s.damaged_log is not None,
-        "damage": s.damaged_log,
+        "damaged_log": s.damaged_log,
+        "damage": s.damage,
         "environment": result.environment.value,
         "labeller": result.labeller,
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
@@ -274,8 +274,8 @@ def print_human(result: StreamResult, outputs: dict[str, str], info: RunInfo | N
         )
     if s.skipped_messages:
         print(f"skipped {s.skipped_messages} messages that could not be decoded (see the warnings)")
-    if s.damaged_log:
-        print(f"the log ended early: {s.damaged_log}")
+    if s.damage:
+        print(f"the log ended early: {s.damage}")
     if "rerun" in outputs:
         if info is not None and info.raw_in_log:
             print(f"open it with its log: aftershock view {info.source} {outputs['rerun']}")
