@@ -19,7 +19,6 @@ import numpy as np
 import typer
 
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.metrics import cluster_scores, instance_scores, semantic_scores
 from aftershock.pipeline.stream import StreamResult, run_stream
 from aftershock.pipeline.types import Scan
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -27,6 +26,9 @@ from aftershock.pipeline.voxel_map import VoxelMap
 
 def evaluate_map(vmap: VoxelMap) -> dict[str, Any]:
     """Scores of the map's predictions against the true labels of its stored points."""
+    # Imported here: scikit-learn costs every command ~2 s of start-up otherwise (the CLI registers them all).
+    from aftershock.pipeline.metrics import cluster_scores, instance_scores, semantic_scores
+
     if not vmap.has_truth:
         raise InputError("the log carries no ground truth (class_id / instance_id point fields)")
     known = vmap.true_class_ids != np.iinfo(np.uint16).max
