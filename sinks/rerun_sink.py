@@ -443,7 +443,9 @@ class RerunSink(Sink):
                 return
             except RuntimeError as exc:
                 if "file" in str(exc).lower():  # "File-writer thread shut down prematurely"
-                    raise self._write_failed(f"{self._why()} ({exc})") from None
+                    error = self._write_failed(f"{self._why()} ({exc})")
+                    self.rec.disconnect()  # returns at once here; Rerun says its piece now, before our line
+                    raise error from None
                 if "timed out" not in str(exc):
                     raise
             size = self.path.stat().st_size if self.path.exists() else 0

@@ -38,8 +38,8 @@ from rrd_read import read_rrd, rrd_verify
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.config import Config, load_config
-from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.types import LabelledCloud
+from aftershock.pipeline.errors import InputError, OutputError
+from aftershock.pipeline.types import LabelledCloud, RunInfo
 from aftershock.sinks import rerun_blueprint as L
 
 RG: tuple[str, ...] = ("--labeller", "region-growing")
@@ -608,3 +608,30 @@ def test_weak_run_json_says_when_the_log_was_damaged(tmp_path: Path, capsys) -> 
     assert result["skipped_messages"] == 0 and result["scans"] >= 5
     for key in ("scans", "points", "interrupted", "registration_failures", "outputs"):  # kept, never renamed
         assert key in result
+
+
+def test_1_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """When Rerun's file writer dies without saying so, every flush times out: the sink gives up once the file
+    stops growing and marks the process as stuck (the command line then ends it after the error line)."""
+    from aftershock.sinks import rerun_sink
+
+    out = tmp_path / "x.rrd"
+    sink = rerun_sink.RerunSink(out, False, None, load_config().rerun)
+    sink.begin(RunInfo(str(out), "mcap"))
+    monkeypatch.setattr(rerun_sink, "FLUSH_STALL_S", 0.5)
+
+    def timed_out(timeout_sec: float = 0.0) -> None:
+        time.sleep(min(timeout_sec, 0.05))
+        raise RuntimeError("Flush timed out - not all log messages were sent")
+
+    real_flush = sink.rec.flush
+    monkeypatch.setattr(sink.rec, "flush", timed_out)
+    t0 = time.monotonic()
+    with pytest.raises(OutputError, match="recording stopped at") as caught:
+        sink.close()
+    assert caught.value.process_stuck and time.monotonic() - t0 < 5
+    monkeypatch.setattr(sink.rec, "flush", real_flush)
+    sink.rec.flush()
+    sink.rec.disconnect()
