@@ -25,13 +25,14 @@ from faults_data import (
     can_mount,
     corrupt_chunk,
     fill_disk,
+    hall_clouds,
     huge_data_length,
     pcd_size_bomb,
     small_disk,
     strip_summary,
     write_log,
 )
-from fixtures import PERIOD_NS, T0_NS, chunk_offsets, interruptible
+from fixtures import PERIOD_NS, T0_NS, chunk_offsets, interruptible, write_bag
 from mcap.writer import CompressionType
 from rrd_read import read_rrd, rrd_verify
 
@@ -262,6 +263,13 @@ def test_6_an_output_that_is_the_input_is_refused_even_with_force(tmp_path: Path
     ply = folder / "map.ply"
     code, _, err = cli(["refine", str(ply), "--out", str(ply), "--force"], capsys)
     assert code == 2 and "is the input" in err and sha(ply) == kept
+    # A ROS 2 bag folder: its files are inputs too, and a run beside them works
+    bag = write_bag(tmp_path / "bag2", hall_clouds(4)[0], ros2=True)
+    db = next(q for q in bag.iterdir() if q.suffix in (".db3", ".mcap"))
+    code, _, err = cli(["run", str(bag), *RG, "-q", "--force", "--mcap-out", str(db)], capsys)
+    assert code == 2 and "is the input" in err
+    code, out, err = cli(["run", str(bag), *RG, "-q", "--json", "--mcap-out", str(tmp_path / "b.mcap")], capsys)
+    assert code == 0 and json.loads(out)["scans"] == 4, err
 
 
 # ----------------------------------------------------------------------------------- 7: signals

@@ -96,17 +96,19 @@ def open_scans(source: str, cfg: Config, quiet: bool) -> tuple[Iterator[Scan], R
 
 
 def input_files(source: str) -> list[Path]:
-    """The files a run reads (the log, or a folder's point-cloud files), which no output may replace."""
+    """The files a run reads (the log, a bag folder's files, a folder's or glob's point-cloud files), which no
+    output may replace."""
     from aftershock import sources
 
-    path = Path(source)
-    if source.startswith(sources.SIM_SCHEME):
+    kind = sources.kind_of(source)
+    if kind is sources.SourceKind.SIM:
         return []
-    if path.is_dir() or sources.kind_of(source) is sources.SourceKind.FILES:
+    if kind is sources.SourceKind.FILES:
         from aftershock.sources.files import list_files
 
-        return [path, *list_files(source)] if path.exists() else list_files(source)
-    return [path]
+        return list_files(source)
+    path = Path(source)
+    return [q for q in path.iterdir() if q.is_file()] if path.is_dir() else [path]
 
 
 def make_sinks(
