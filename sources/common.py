@@ -301,8 +301,9 @@ def _skip(report: SourceReport, path: str | Path, ev: Skipped) -> None:
 
 
 def _decode(ev: CloudMessage, path: str | Path, first: bool = False) -> Scan | None:
-    """The scan of a cloud message; `_Undecodable` for a malformed message (InputError for a topic without
-    x/y/z when it is the first message: then no message of it can be replayed)."""
+    """The scan of a cloud message; `_Undecodable` for a malformed message or a damaged file. The first one
+    raises InputError instead when it is the input's fault as a whole (a topic without x/y/z, a single
+    damaged file), so a run that cannot start says so in one line."""
     try:
         cloud = ev.decode()
         return columns_to_scan(
@@ -316,8 +317,10 @@ def _decode(ev: CloudMessage, path: str | Path, first: bool = False) -> Scan | N
         if first:
             raise InputError(f"{ev.topic}: {exc}", path) from None
         raise _Undecodable(f"cannot decode the point cloud: {exc}") from None
-    except InputError:
-        raise
+    except InputError as exc:  # a damaged file among a folder's scans: skipped like a bad message
+        if first:
+            raise
+        raise _Undecodable(str(exc)) from None
     except MemoryError:
         raise _Undecodable("cannot decode the point cloud: it claims more memory than there is") from None
     except Exception as exc:  # decoders raise many kinds for malformed bytes; one bad message must not end the run

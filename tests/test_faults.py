@@ -643,3 +643,16 @@ def test_1_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
     monkeypatch.setattr(sink.rec, "flush", real_flush)
     sink.rec.flush()
     sink.rec.disconnect()
+
+
+def test_3_a_damaged_file_among_a_folders_scans_is_skipped(lidar_dir: Path, tmp_path: Path, capsys) -> None:
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    for k, name in enumerate(("room_scan1.pcd", "room_scan2.pcd", "room_scan1.pcd")):
+        (folder / f"{k}.pcd").symlink_to(lidar_dir / name)
+    (folder / "1b.pcd").write_bytes((lidar_dir / "room_scan2.pcd").read_bytes()[:5000])  # cut off
+    code, out, err = cli(["run", str(folder), *RG, "-q", "--json"], capsys)
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["scans"] == 3 and result["skipped_messages"] == 1
+    assert "1b.pcd" in err and "skipped" in err
