@@ -68,6 +68,7 @@ BATCH_BYTES: Final = 16 * 2**20
 MIN_FREE_BYTES: Final = 3 * BATCH_BYTES
 FLUSH_POLL_S: Final = 0.5
 FLUSH_STALL_S: Final = 10.0
+_WRITE_FAILED: Final = "writing the recording failed"
 FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
 STATS_EVERY: Final = 10  # per-scan scalars go out as columns every this many scans (live plots lag by as much)
 RECORDING_ID_PREFIX: Final = "aftershock-"
@@ -452,12 +453,18 @@ class RerunSink(Sink):
             now = time.monotonic()
             if size != last_size:
                 last_size, last_change = size, now
-            elif now - last_change > FLUSH_STALL_S:
+            elif now - last_change > FLUSH_STALL_S and (self._why() != _WRITE_FAILED or not self._viewers):
+                # The file stopped growing: its writer is dead. (With a viewer attached, a flush may just be
+                # waiting for a slow viewer while the file is complete; only a full disk then says otherwise.)
                 raise self._write_failed(self._why(), process_stuck=True)
+
+    @property
+    def _viewers(self) -> bool:
+        return any(isinstance(s, rr.GrpcSink) for s in self._sinks)
 
     def _why(self) -> str:
         free = self._free_bytes()
-        return "the disk is full" if free is not None and free < MIN_FREE_BYTES else "writing the recording failed"
+        return "the disk is full" if free is not None and free < MIN_FREE_BYTES else _WRITE_FAILED
 
     def _write_failed(self, why: str, process_stuck: bool = False) -> OutputError:
         size = self.path.stat().st_size if self.path is not None and self.path.exists() else 0
