@@ -3,6 +3,7 @@ names another address (the `rerun` command's own default is every interface)."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import socket
 import subprocess
@@ -21,7 +22,14 @@ VIEWER_MEMORY: Final = "75%"  # the viewer drops the oldest data past this; comp
 
 
 def rerun_command() -> str:
-    """The `rerun` command of this environment (beside this Python), else the one on PATH."""
+    """The viewer binary that rerun-sdk ships (`rerun_cli/rerun`), else the `rerun` command beside this Python or
+    on PATH. The binary itself, not the console script that wraps it: the script runs the binary as a child, so
+    stopping the script would leave the viewer running."""
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        binary = Path(spec.origin).with_name("rerun")
+        if binary.is_file() and os.access(binary, os.X_OK):
+            return str(binary)
     beside = Path(sys.executable).with_name("rerun")
     return str(beside) if beside.exists() else "rerun"
 

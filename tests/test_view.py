@@ -98,6 +98,7 @@ def test_web_viewer_listens_on_localhost_only(velodyne: Path, recording: Path) -
         assert line.startswith("open http://127.0.0.1:"), (line, child.stderr.read() if child.poll() else "")
         deadline = time.monotonic() + 20
         listening: set[str] = set()
+        procs: list[psutil.Process] = []
         while time.monotonic() < deadline and len(listening) < 2:
             procs = [psutil.Process(child.pid), *psutil.Process(child.pid).children(recursive=True)]
             listening = {
@@ -113,3 +114,5 @@ def test_web_viewer_listens_on_localhost_only(velodyne: Path, recording: Path) -
         child.send_signal(signal.SIGINT)
         child.wait(timeout=30)
     assert child.returncode == 0
+    _, alive = psutil.wait_procs(procs[1:], timeout=10)
+    assert not alive, f"the viewer outlived the command: {alive}"  # the console script's child once did
