@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 
 EDGE_JUMP_M: Final = 0.25  # a range jump between neighbouring columns of one beam that makes an edge
 RECAST_EPS_M: Final = 1e-3  # start a second ray this far past the surface it left
+MAX_PANES: Final = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,11 +80,17 @@ def apply_optics(
         through = glass[u < cond.glass_pass]
         lost = glass[(u >= cond.glass_pass) & (u < cond.glass_pass + cond.glass_lost)]
         t[lost], tri[lost] = np.inf, -1
-        if len(through):
+        # a pane has two faces (and a window may have two panes): go on through glass a few times
+        for _ in range(MAX_PANES * 2):
+            if not len(through):
+                break
             start = origins[through] + dirs[through] * (t[through, None] + RECAST_EPS_M)
             t2, tri2, cos2 = scene.raycaster.cast(start, dirs[through])
             t[through] = t[through] + RECAST_EPS_M + t2
             tri[through], cos[through] = tri2, cos2
+            more = tri2 >= 0
+            more[more] = optic[tri2[more]] == TRANSPARENT
+            through = through[more]
     mirror = np.flatnonzero(kind == SPECULAR) if cond.mirrors else np.zeros(0, np.int64)
     if len(mirror):
         normals = scene.raycaster.normals[tri[mirror]]
