@@ -60,6 +60,8 @@ COLOR_DROP: Final = 0.3  # share of training points shown without colour (the co
 TRANSFER_SEEDS: Final[tuple[int, ...]] = split.TRAIN_SEEDS[:4]
 TRANSFER_SCANS: Final = 100
 TRANSFER_COLOR_DROP: Final = 0.5
+TRANSFER_EPOCHS: Final = 1  # fine-tuning the families' MCPNet (see `widen`)
+TRANSFER_LEARNING_RATE: Final = LEARNING_RATE / 3
 TRANSFER_SENSORS: Final[tuple[str, ...]] = ("vlp16", "vlp16", "vlp32c", "os1-32")
 TRANSFER_ROBOTS: Final[tuple[str, ...]] = ("legged", "wheeled", "tracked")
 POINTNET_MAX_POINTS: Final = 1024
@@ -263,15 +265,20 @@ def train_mcpnet(
     log: bool = True,
     color_drop: float = COLOR_DROP,
     checkpoint: Callable[[MCPNet, dict], None] | None = None,
+    init: MCPNet | None = None,
+    learning_rate: float = LEARNING_RATE,
 ) -> tuple[MCPNet, dict]:
-    """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once."""
+    """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once.
+    `init` starts from a trained network (see `widen`) instead of from random weights."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MCPNet(cfg)
-    opt = torch.optim.Adam(model.parameters(), lr=LEARNING_RATE)
+    if init is not None:
+        model.load_state_dict(widen(init, cfg).state_dict())
+    opt = torch.optim.Adam(model.parameters(), lr=learning_rate)
     batch = BATCH_INSTANCES * POINTS_PER_INSTANCE
     steps = max(1, len(pool) // batch)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps, eta_min=LEARNING_RATE / 20)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps, eta_min=learning_rate / 20)
     ce = nn.CrossEntropyLoss()
     use_ctx = cfg.kind == "mcpnet"
     history = []
@@ -306,6 +313,23 @@ def train_mcpnet(
             checkpoint(model, {"epoch": epoch + 1, "history": list(history)})
     model.eval()
     return model, {"steps_per_epoch": steps, "history": history, "seconds": round(time.perf_counter() - start, 1)}
+
+
+def widen(trained: MCPNet, cfg: NetConfig) -> MCPNet:
+    """A network of `cfg` (more point features appended) that computes what `trained` computed: the weights
+    of the new inputs start at zero, every other weight is copied."""
+    model = MCPNet(cfg)
+    state = trained.state_dict()
+    new = model.state_dict()
+    for key, value in state.items():
+        if new[key].shape == value.shape:
+            new[key] = value.clone()
+        else:  # the first layer of point_mlp: [context, point features], the added features at the end
+            grown = torch.zeros_like(new[key])
+            grown[:, : value.shape[1]] = value
+            new[key] = grown
+    model.load_state_dict(new)
+    return model
 
 
 def _log_epoch(kind: str, epochs: int, h: dict[str, float], start: float) -> None:
@@ -486,30 +510,39 @@ def train(
     base = NetConfig()
     figures: dict[str, Any] = {"range_m": base.range_m, "seed": seed, "epochs": epochs}
     if "mcpnet" in kinds:
+        # 1. MCPNet of the families (the recipe shipped before #12), 2. widened by the geometry features and
+        # trained on: randomised missions of the training generators, colour dropped for half the points.
         t0 = time.perf_counter()
+        fam_pool = Pool(stage_all(TRAIN_SEEDS, TRAIN_SCANS, base))
+        families_path = paths["mcpnet"].with_name(paths["mcpnet"].stem + "_families.pt")
+        first, fig1 = train_mcpnet(fam_pool, NetConfig(kind="mcpnet"), epochs, seed)
+        save_weights(families_path, first, NetConfig(kind="mcpnet"), {**figures, "train_seeds": list(TRAIN_SEEDS),
+                     "families": list(FAMILIES), "training_points": len(fam_pool), **fig1})  # fmt: skip
+        del fam_pool
         uris = transfer_uris(TRANSFER_SEEDS, TRANSFER_SCANS)
         pool = Pool(stage_uris(uris, base))
         recipe = {
-            "train_seeds": list(TRANSFER_SEEDS),
+            "train_seeds": sorted(set(TRAIN_SEEDS) | set(TRANSFER_SEEDS)),
             "generators": list(split.TRAIN_GENERATORS),
             "held_out_generator": split.HELDOUT_GENERATOR,
             "missions": uris,
             "scans_per_mission": TRANSFER_SCANS,
             "color_drop": TRANSFER_COLOR_DROP,
+            "init": str(families_path.name),
+            "fine_tune_epochs": TRANSFER_EPOCHS,
             "training_points": len(pool),
             "staging_seconds": round(time.perf_counter() - t0, 1),
         }
         cfg = transfer_config()
-        part = paths["mcpnet"].with_suffix(".partial.pt")
         model, fig = train_mcpnet(
             pool,
             cfg,
-            epochs,
+            TRANSFER_EPOCHS,
             seed,
             color_drop=TRANSFER_COLOR_DROP,
-            checkpoint=lambda m, f: save_weights(part, m, cfg, {**figures, **recipe, **f}),
+            init=first,
+            learning_rate=TRANSFER_LEARNING_RATE,
         )
-        part.unlink(missing_ok=True)
         fig["parameters"] = num_parameters(model)
         save_weights(paths["mcpnet"], model, cfg, {**figures, **recipe, **fig})
         figures["mcpnet"] = recipe | {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}

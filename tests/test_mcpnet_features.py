@@ -61,3 +61,19 @@ def test_both_layouts_run_and_others_are_refused(tmp_path: Path) -> None:
     save_weights(tmp_path / "pn.pt", PointNet(odd), odd, {})
     with pytest.raises(InputError, match=r"pn\.pt: weights use feature layout .*aftershock train mcpnet"):
         load_model(tmp_path / "pn.pt")
+
+
+def test_widened_network_starts_where_the_trained_one_was() -> None:
+    import torch
+
+    from aftershock.models.mcpnet_train import widen
+
+    torch.manual_seed(0)
+    old = MCPNet(NetConfig())
+    new = widen(old, transfer_config())
+    p, c = torch.randn(8, 7), torch.randn(8, 50, 6)
+    m = torch.ones(8, 50, dtype=torch.bool)
+    e0, l0 = old(p, c, m)
+    e1, l1 = new(torch.cat([p, torch.randn(8, 5)], dim=1), c, m)
+    torch.testing.assert_close(e0, e1)
+    torch.testing.assert_close(l0, l1)
