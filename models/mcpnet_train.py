@@ -474,7 +474,7 @@ KINDS: Final[tuple[str, ...]] = ("mcpnet", "mcpnet-nocontext", "pointnet")
 
 
 def transfer_config() -> NetConfig:
-    """MCPNet's configuration since #12: the point features followed by the local geometry features."""
+    """The transfer candidate's configuration (#12): the point features followed by the geometry features."""
     features = POINT_FEATURES + GEOMETRY_FEATURES
     return NetConfig(kind="mcpnet", point_dim=len(features), features=features)
 
@@ -486,12 +486,11 @@ def train(
     force: bool = False,
     kinds: tuple[str, ...] = KINDS,
 ) -> dict[str, Any]:
-    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights.
+    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights
+    (the shipped ones: plain missions of both families).
 
-    MCPNet is trained to transfer (`transfer_uris`: randomised missions of the training generators, geometry
-    features, colour dropped for half the points); the two baselines keep the recipe they were shipped with
-    (plain missions of both families). `out` is the MCPNet weights file (default models/weights/mcpnet.pt);
-    the baselines go beside it. `kinds` limits which networks are trained.
+    `out` is the MCPNet weights file (default models/weights/mcpnet.pt); the baselines go beside it.
+    `kinds` limits which networks are trained.
     """
     torch.set_num_threads(1)  # on a shared 2-core machine a second intra-op thread mostly waits
     out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet.pt"
@@ -508,71 +507,96 @@ def train(
     epochs = EPOCHS if epochs is None else epochs
     start = time.perf_counter()
     base = NetConfig()
-    figures: dict[str, Any] = {"range_m": base.range_m, "seed": seed, "epochs": epochs}
-    if "mcpnet" in kinds:
-        # 1. MCPNet of the families (the recipe shipped before #12), 2. widened by the geometry features and
-        # trained on: randomised missions of the training generators, colour dropped for half the points.
-        t0 = time.perf_counter()
-        fam_pool = Pool(stage_all(TRAIN_SEEDS, TRAIN_SCANS, base))
-        families_path = paths["mcpnet"].with_name(paths["mcpnet"].stem + "_families.pt")
-        first, fig1 = train_mcpnet(fam_pool, NetConfig(kind="mcpnet"), epochs, seed)
-        save_weights(families_path, first, NetConfig(kind="mcpnet"), {**figures, "train_seeds": list(TRAIN_SEEDS),
-                     "families": list(FAMILIES), "training_points": len(fam_pool), **fig1})  # fmt: skip
-        del fam_pool
-        uris = transfer_uris(TRANSFER_SEEDS, TRANSFER_SCANS)
-        pool = Pool(stage_uris(uris, base))
-        recipe = {
-            "train_seeds": sorted(set(TRAIN_SEEDS) | set(TRANSFER_SEEDS)),
-            "generators": list(split.TRAIN_GENERATORS),
-            "held_out_generator": split.HELDOUT_GENERATOR,
-            "missions": uris,
-            "scans_per_mission": TRANSFER_SCANS,
-            "color_drop": TRANSFER_COLOR_DROP,
-            "init": str(families_path.name),
-            "fine_tune_epochs": TRANSFER_EPOCHS,
-            "training_points": len(pool),
-            "staging_seconds": round(time.perf_counter() - t0, 1),
-        }
-        cfg = transfer_config()
-        model, fig = train_mcpnet(
-            pool,
-            cfg,
-            TRANSFER_EPOCHS,
-            seed,
-            color_drop=TRANSFER_COLOR_DROP,
-            init=first,
-            learning_rate=TRANSFER_LEARNING_RATE,
-        )
+    missions = stage_all(TRAIN_SEEDS, TRAIN_SCANS, base)
+    pool = Pool(missions)
+    figures: dict[str, Any] = {
+        "train_seeds": list(TRAIN_SEEDS),
+        "families": list(FAMILIES),
+        "sensor": SENSOR,
+        "scans_per_mission": TRAIN_SCANS,
+        "training_points": len(pool),
+        "epochs": epochs,
+        "pointnet_epochs": pointnet_epochs,
+        "range_m": base.range_m,
+        "seed": seed,
+        "staging_seconds": round(time.perf_counter() - start, 1),
+    }
+    for kind in ("mcpnet", "mcpnet-nocontext"):
+        if kind not in kinds:
+            continue
+        cfg = NetConfig(kind=kind)
+        model, fig = train_mcpnet(pool, cfg, epochs, seed)
         fig["parameters"] = num_parameters(model)
-        save_weights(paths["mcpnet"], model, cfg, {**figures, **recipe, **fig})
-        figures["mcpnet"] = recipe | {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
-        del pool
-    if {"mcpnet-nocontext", "pointnet"} & set(kinds):
-        t0 = time.perf_counter()
-        missions = stage_all(TRAIN_SEEDS, TRAIN_SCANS, base)
-        pool = Pool(missions)
-        recipe = {
-            "train_seeds": list(TRAIN_SEEDS),
-            "families": list(FAMILIES),
-            "sensor": SENSOR,
-            "scans_per_mission": TRAIN_SCANS,
-            "training_points": len(pool),
-            "pointnet_epochs": pointnet_epochs,
-            "staging_seconds": round(time.perf_counter() - t0, 1),
-        }
-        if "mcpnet-nocontext" in kinds:
-            cfg = NetConfig(kind="mcpnet-nocontext")
-            model, fig = train_mcpnet(pool, cfg, epochs, seed)
-            fig["parameters"] = num_parameters(model)
-            save_weights(paths["mcpnet-nocontext"], model, cfg, {**figures, **recipe, **fig})
-            figures["mcpnet-nocontext"] = recipe | {k: v for k, v in fig.items() if k != "history"}
-        if "pointnet" in kinds:
-            cfg = NetConfig(kind="pointnet")
-            model, fig = train_pointnet(missions, cfg, pointnet_epochs, seed)
-            fig["parameters"] = num_parameters(model)
-            save_weights(paths["pointnet"], model, cfg, {**figures, **recipe, **fig})
-            figures["pointnet"] = recipe | {k: v for k, v in fig.items() if k != "history"}
+        save_weights(paths[kind], model, cfg, {**figures, **fig})
+        figures[kind] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+    if "pointnet" in kinds:
+        cfg = NetConfig(kind="pointnet")
+        model, fig = train_pointnet(missions, cfg, pointnet_epochs, seed)
+        fig["parameters"] = num_parameters(model)
+        save_weights(paths["pointnet"], model, cfg, {**figures, **fig})
+        figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
     figures["weights"] = {k: str(p) for k, p in paths.items()}
     figures["sizes_bytes"] = {k: p.stat().st_size for k, p in paths.items()}
     figures["total_seconds"] = round(time.perf_counter() - start, 1)
     return figures
+
+
+def train_transfer(
+    out: Path | None = None,
+    seed: int = 0,
+    epochs: int | None = None,
+    force: bool = False,
+    init: Path | None = None,
+) -> dict[str, Any]:
+    """The transfer candidate (#12, not shipped: it lost to the shipped MCPNet on validation, see README):
+    the families' MCPNet (`init`, default the shipped models/weights/mcpnet.pt, which `train` makes) widened
+    by the geometry features and fine-tuned on randomised missions of the training generators, colour dropped
+    for half the points. Writes models/weights/mcpnet_transfer.pt unless `out` says otherwise; run it with
+    `--set label.weights=...`."""
+    from aftershock.models.mcpnet import load_model
+
+    torch.set_num_threads(1)
+    out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet_transfer.pt"
+    if out.exists() and not force:
+        raise OutputError("weights file exists; pass --force to overwrite", out)
+    init = Path(init) if init is not None else WEIGHTS_DIR / "mcpnet.pt"
+    first, first_cfg, _ = load_model(init, kind="mcpnet")
+    epochs = TRANSFER_EPOCHS if epochs is None else epochs
+    start = time.perf_counter()
+    uris = transfer_uris(TRANSFER_SEEDS, TRANSFER_SCANS)
+    pool = Pool(stage_uris(uris, NetConfig()))
+    recipe = {
+        "train_seeds": sorted(set(TRAIN_SEEDS) | set(TRANSFER_SEEDS)),
+        "generators": list(split.TRAIN_GENERATORS),
+        "held_out_generator": split.HELDOUT_GENERATOR,
+        "missions": uris,
+        "scans_per_mission": TRANSFER_SCANS,
+        "color_drop": TRANSFER_COLOR_DROP,
+        "init": init.name,
+        "fine_tune_epochs": epochs,
+        "training_points": len(pool),
+        "range_m": first_cfg.range_m,
+        "seed": seed,
+        "staging_seconds": round(time.perf_counter() - start, 1),
+    }
+    cfg = transfer_config()
+    model, fig = train_mcpnet(
+        pool,
+        cfg,
+        epochs,
+        seed,
+        color_drop=TRANSFER_COLOR_DROP,
+        init=first,
+        learning_rate=TRANSFER_LEARNING_RATE,
+    )
+    fig["parameters"] = num_parameters(model)
+    save_weights(out, model, cfg, {**recipe, **fig})
+    return (
+        recipe
+        | {k: v for k, v in fig.items() if k != "history"}
+        | {
+            "weights": str(out),
+            "size_bytes": out.stat().st_size,
+            "total_seconds": round(time.perf_counter() - start, 1),
+        }
+    )

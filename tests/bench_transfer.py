@@ -87,6 +87,12 @@ def _pooled(reps: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def _overrides(method: str) -> list[str]:
+    """TRANSFER_MCPNET_WEIGHTS measures other MCPNet weights than the shipped ones (e.g. a rejected candidate)."""
+    weights = os.environ.get("TRANSFER_MCPNET_WEIGHTS")
+    return [f"label.weights={weights}"] if weights and method == "mcpnet" else []
+
+
 def test_mcpnet_transfer(missions: dict[tuple[str, bool], list[Path]]) -> None:
     from bench_mcpnet import _run
 
@@ -94,7 +100,7 @@ def test_mcpnet_transfer(missions: dict[tuple[str, bool], list[Path]]) -> None:
     for method in METHODS:
         table[method] = {}
         for key, paths in missions.items():
-            table[method][key] = _pooled([_run(p, method) for p in paths])
+            table[method][key] = _pooled([_run(p, method, _overrides(method)) for p in paths])
             r = table[method][key]
             print(
                 f"  {method:16s} {key[0]:9s} {'rgb ' if key[1] else 'mono'} OA {r['overall_accuracy'] * 100:5.1f} "
@@ -124,6 +130,8 @@ def test_mcpnet_transfer(missions: dict[tuple[str, bool], list[Path]]) -> None:
             per = table[method][(g, c)]["per_class_iou"]
             cells = [f"{per[n] * 100:.0f}" if n in per else "–" for n in CLASS_NAMES]
             print(f"| {g} | {'rgb' if c else 'no'} | " + " | ".join(cells) + " |")
+    if "mcpnet" not in table:
+        return
     print("\ninstances shown / true, instance precision / recall at IoU 0.5 (mcpnet)")
     for g, c in cols:
         r = table["mcpnet"][(g, c)]
