@@ -204,6 +204,16 @@ def with_geometry(point: np.ndarray, context: np.ndarray, mask: np.ndarray) -> n
     return np.concatenate([point, geometry_features(context[..., 0:3], mask)], axis=1)
 
 
+def with_geometry_of_rows(
+    point: np.ndarray, positions: np.ndarray, rows: np.ndarray, ctx_rows: np.ndarray
+) -> np.ndarray:
+    """`with_geometry` from map rows (K,) and their drawn context rows (K, M, -1 where none), repeats kept as
+    in training."""
+    mask = ctx_rows >= 0
+    safe = np.where(mask, ctx_rows, rows[:, None])
+    return with_geometry(point, positions[safe] - positions[rows][:, None, :], mask)
+
+
 def context_features(
     positions: np.ndarray,
     colors: np.ndarray | None,
