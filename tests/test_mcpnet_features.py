@@ -77,3 +77,18 @@ def test_widened_network_starts_where_the_trained_one_was() -> None:
     e1, l1 = new(torch.cat([p, torch.randn(8, 5)], dim=1), c, m)
     torch.testing.assert_close(e0, e1)
     torch.testing.assert_close(l0, l1)
+
+
+def test_weights_with_geometry_run_through_the_stream(tmp_path: Path) -> None:
+    """The labeller reads the layout from the weights file and computes the geometry features itself."""
+    from aftershock import sources
+    from aftershock.pipeline.config import load_config
+    from aftershock.pipeline.stream import run_stream
+    from aftershock.pipeline.types import RunInfo
+
+    path = tmp_path / "geometry.pt"
+    save_weights(path, MCPNet(transfer_config()), transfer_config(), {})
+    cfg = load_config(None, [f"label.weights={path}"])
+    uri = "sim://wing?seed=3&scans=4&color=0"
+    res = run_stream(sources.open(uri), cfg, [], RunInfo(source=uri, source_kind="sim"), lambda _t: None)
+    assert len(res.vmap) > 1000 and res.labeller == "mcpnet"
