@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-all train screenshot clean
+.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-transfer bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -52,7 +52,11 @@ bench-cracks: setup
 bench-lrgnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_lrgnet.py
 
-bench-all: bench bench-io bench-mcpnet bench-cracks bench-lrgnet
+# In-family against a scene generator no network was trained or tuned on, with and without colour.
+bench-transfer: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_transfer.py
+
+bench-all: bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-transfer
 
 train: setup
 	$(BIN)/aftershock train mcpnet

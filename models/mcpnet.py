@@ -19,7 +19,14 @@ import torch
 from torch import nn
 
 from aftershock.models.layers import mlp
-from aftershock.models.netconfig import CONTEXT_DIM, CONTEXT_FEATURES, POINT_DIM, POINT_FEATURES, NetConfig
+from aftershock.models.netconfig import (
+    CONTEXT_DIM,
+    CONTEXT_FEATURES,
+    GEOMETRY_FEATURES,
+    LAYOUTS,
+    POINT_DIM,
+    NetConfig,
+)
 from aftershock.models.pointnet import PointNet
 from aftershock.models.weights_file import WEIGHTS_DIR, read_weights
 from aftershock.pipeline.classes import NUM_CLASSES
@@ -132,10 +139,11 @@ def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, Ne
         raise InputError(f"weights header does not match this version ({exc}); {REBUILD_HINT}", path) from None
     if kind is not None and cfg.kind != kind:
         raise InputError(f"weights are for {cfg.kind!r}, expected {kind!r}; {REBUILD_HINT}", path)
-    if cfg.features != POINT_FEATURES or cfg.context_features != CONTEXT_FEATURES:
+    known = LAYOUTS if cfg.kind == "mcpnet" else LAYOUTS[1:]  # geometry comes from the context: MCPNet only
+    if cfg.features not in known or cfg.context_features != CONTEXT_FEATURES or cfg.point_dim != len(cfg.features):
         raise InputError(
-            f"weights use feature layout {list(cfg.features)}, this version expects "
-            f"{list(POINT_FEATURES)}; {REBUILD_HINT}",
+            f"weights use feature layout {list(cfg.features)}, this version runs "
+            f"{' or '.join(str(list(k)) for k in known)}; {REBUILD_HINT}",
             path,
         )
     if cfg.num_classes != NUM_CLASSES:
@@ -162,6 +170,48 @@ def point_features(positions: np.ndarray, colors: np.ndarray | None, origin: np.
         out[:, 3:6] = colors.astype(np.float32) / 255.0 - 0.5
         out[:, 6] = 1.0
     return out
+
+
+def geometry_features(offsets: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(K, 5) float32 local shape from context offsets (K, M, 3) (neighbour minus point) and their mask (K, M):
+    |n_z| of the least-variance direction (1 on floors, 0 on walls), planarity, linearity and sphericity from
+    the sorted covariance eigenvalues, and the standard deviation of heights. Zero where fewer than three
+    neighbours exist. Vectorised: one batched 3 x 3 eigen-decomposition."""
+    k = len(offsets)
+    out = np.zeros((k, len(GEOMETRY_FEATURES)), np.float32)
+    w = mask.astype(np.float64)
+    n = w.sum(axis=1)
+    ok = n >= 3
+    if not ok.any():
+        return out
+    x = offsets[ok].astype(np.float64)
+    w, n = w[ok], n[ok]
+    mean = (x * w[..., None]).sum(1) / n[:, None]
+    d = (x - mean[:, None, :]) * w[..., None]
+    cov = np.einsum("kmi,kmj->kij", d, d) / n[:, None, None]
+    vals, vecs = np.linalg.eigh(cov + np.eye(3) * 1e-9)  # ascending
+    l3, l2, l1 = vals[:, 0], vals[:, 1], np.maximum(vals[:, 2], 1e-12)
+    out[ok, 0] = np.abs(vecs[:, 2, 0])
+    out[ok, 1] = (l2 - l3) / l1
+    out[ok, 2] = (l1 - l2) / l1
+    out[ok, 3] = l3 / l1
+    out[ok, 4] = np.sqrt(np.maximum(cov[:, 2, 2], 0.0)) / 0.1  # in voxels of 0.1 m
+    return out
+
+
+def with_geometry(point: np.ndarray, context: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Point features (K, 7) joined by the geometry features of their context (K, M, >=3) -> (K, 12)."""
+    return np.concatenate([point, geometry_features(context[..., 0:3], mask)], axis=1)
+
+
+def with_geometry_of_rows(
+    point: np.ndarray, positions: np.ndarray, rows: np.ndarray, ctx_rows: np.ndarray
+) -> np.ndarray:
+    """`with_geometry` from map rows (K,) and their drawn context rows (K, M, -1 where none), repeats kept as
+    in training."""
+    mask = ctx_rows >= 0
+    safe = np.where(mask, ctx_rows, rows[:, None])
+    return with_geometry(point, positions[safe] - positions[rows][:, None, :], mask)
 
 
 def context_features(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -20,14 +20,16 @@ import numpy as np
 import torch
 from torch import nn
 
+from aftershock.models import transfer_split as split
 from aftershock.models.mcpnet import (
     MCPNet,
     context_draws,
     num_parameters,
     point_features,
     save_weights,
+    with_geometry,
 )
-from aftershock.models.netconfig import CONTEXT_DIM, POINT_DIM, NetConfig
+from aftershock.models.netconfig import CONTEXT_DIM, GEOMETRY_FEATURES, POINT_DIM, POINT_FEATURES, NetConfig
 from aftershock.models.pointnet import PointNet
 from aftershock.models.weights_file import WEIGHTS_DIR
 from aftershock.pipeline.classes import UNLABELLED
@@ -52,6 +54,16 @@ MARGIN: Final = 1.0
 UNIFORM_POINTS: Final = 128  # per batch, drawn over all points for the class loss only
 LEARNING_RATE: Final = 1e-3
 COLOR_DROP: Final = 0.3  # share of training points shown without colour (the colour-free mode)
+# MCPNet since #12: trained to transfer. Randomised missions of the training generators (palettes, robots,
+# mounts, sensors, conditions), geometry features, and colour dropped for half the points, so that the
+# colour-free mode is learnt as much as the colour one. The held-out generator is never staged.
+TRANSFER_SEEDS: Final[tuple[int, ...]] = split.TRAIN_SEEDS[:4]
+TRANSFER_SCANS: Final = 100
+TRANSFER_COLOR_DROP: Final = 0.5
+TRANSFER_EPOCHS: Final = 1  # fine-tuning the families' MCPNet (see `widen`)
+TRANSFER_LEARNING_RATE: Final = LEARNING_RATE / 3
+TRANSFER_SENSORS: Final[tuple[str, ...]] = ("vlp16", "vlp16", "vlp32c", "os1-32")
+TRANSFER_ROBOTS: Final[tuple[str, ...]] = ("legged", "wheeled", "tracked")
 POINTNET_MAX_POINTS: Final = 1024
 POINTNET_CLOUDS_PER_STEP: Final = 8
 POINTNET_SCAN_SHARE: Final = 0.25  # scans (clouds) drawn per PointNet epoch, as a share of all training scans
@@ -126,6 +138,25 @@ def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
     )
 
 
+def transfer_uris(seeds: Iterable[int], scans: int) -> list[str]:
+    """The randomised training missions: every training generator and seed, a sensor and a robot drawn per
+    mission, the robot's mount, motion, the palette and the sensor's conditions drawn by the simulator."""
+    out = []
+    for s in seeds:
+        for g in split.TRAIN_GENERATORS:
+            rng = np.random.default_rng([s, sum(map(ord, g)), 12])
+            sensor = TRANSFER_SENSORS[int(rng.integers(len(TRANSFER_SENSORS)))]
+            robot = TRANSFER_ROBOTS[int(rng.integers(len(TRANSFER_ROBOTS)))]
+            out.append(f"sim://{g}?seed={s}&sensor={sensor}&scans={scans}&robot={robot}&randomize=1")
+    return out
+
+
+def open_uri(uri: str) -> SimMission:
+    from aftershock.sources.simulated import make_mission, parse_sim_uri
+
+    return make_mission(parse_sim_uri(uri))
+
+
 def open_mission(family: str, seed: int, scans: int) -> SimMission:
     """The simulated mission `sim://FAMILY?seed=N&sensor=vlp16&scans=N` describes."""
     return SimMission(build_scene(family, seed=seed), get_profile(SENSOR), seed=seed, scans=scans)
@@ -162,9 +193,14 @@ class Pool:
         return len(self.rows)
 
     def features(
-        self, idx: np.ndarray, rng: np.random.Generator, augment: bool
+        self,
+        idx: np.ndarray,
+        rng: np.random.Generator,
+        augment: bool,
+        geometry: bool = False,
+        color_drop: float = COLOR_DROP,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Point features (B, 7), context (B, M, 6) and mask (B, M) of samples `idx`."""
+        """Point features (B, 7, or 12 with `geometry`), context (B, M, 6) and mask (B, M) of samples `idx`."""
         rows = self.rows[idx]
         pos = self.positions[rows]
         pf = np.zeros((len(idx), POINT_DIM), np.float32)
@@ -178,6 +214,8 @@ class Pool:
         ctx = np.zeros((*ctx_rows.shape, CONTEXT_DIM), np.float32)
         ctx[..., 0:3] = self.positions[safe] - pos[:, None, :]
         ctx[..., 3:6] = self.colors[safe] - self.colors[rows][:, None, :]
+        if geometry:  # local shape, from the same context (turning about z changes none of it)
+            pf = with_geometry(pf, ctx, mask)
         if augment:
             angle = rng.uniform(0, 2 * np.pi, len(idx)).astype(np.float32)
             c, s = np.cos(angle), np.sin(angle)
@@ -185,7 +223,7 @@ class Pool:
             pf[:, 0], pf[:, 1] = c * x - s * y, s * x + c * y
             x, y = ctx[..., 0].copy(), ctx[..., 1].copy()
             ctx[..., 0], ctx[..., 1] = c[:, None] * x - s[:, None] * y, s[:, None] * x + c[:, None] * y
-            drop = rng.random(len(idx)) < COLOR_DROP
+            drop = rng.random(len(idx)) < color_drop
             pf[drop, 3:7] = 0.0
             ctx[drop, :, 3:6] = 0.0
         return pf, ctx, mask
@@ -219,15 +257,28 @@ def semihard_triplet_loss(emb: torch.Tensor, labels: torch.Tensor, margin: float
     return loss[pos].mean()
 
 
-def train_mcpnet(pool: Pool, cfg: NetConfig, epochs: int, seed: int, log: bool = True) -> tuple[MCPNet, dict]:
-    """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once."""
+def train_mcpnet(
+    pool: Pool,
+    cfg: NetConfig,
+    epochs: int,
+    seed: int,
+    log: bool = True,
+    color_drop: float = COLOR_DROP,
+    checkpoint: Callable[[MCPNet, dict], None] | None = None,
+    init: MCPNet | None = None,
+    learning_rate: float = LEARNING_RATE,
+) -> tuple[MCPNet, dict]:
+    """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once.
+    `init` starts from a trained network (see `widen`) instead of from random weights."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MCPNet(cfg)
-    opt = torch.optim.Adam(model.parameters(), lr=LEARNING_RATE)
+    if init is not None:
+        model.load_state_dict(widen(init, cfg).state_dict())
+    opt = torch.optim.Adam(model.parameters(), lr=learning_rate)
     batch = BATCH_INSTANCES * POINTS_PER_INSTANCE
     steps = max(1, len(pool) // batch)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps, eta_min=LEARNING_RATE / 20)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps, eta_min=learning_rate / 20)
     ce = nn.CrossEntropyLoss()
     use_ctx = cfg.kind == "mcpnet"
     history = []
@@ -238,7 +289,7 @@ def train_mcpnet(pool: Pool, cfg: NetConfig, epochs: int, seed: int, log: bool =
             inst_idx = pool.instance_batch(rng)
             uni_idx = rng.integers(0, len(pool), UNIFORM_POINTS)  # class frequencies as the stream sees them
             idx = np.concatenate([inst_idx, uni_idx])
-            pf, ctx, mask = pool.features(idx, rng, augment=True)
+            pf, ctx, mask = pool.features(idx, rng, augment=True, geometry=cfg.geometry, color_drop=color_drop)
             emb, logits = model(
                 torch.from_numpy(pf),
                 torch.from_numpy(ctx) if use_ctx else None,
@@ -258,8 +309,27 @@ def train_mcpnet(pool: Pool, cfg: NetConfig, epochs: int, seed: int, log: bool =
         history.append({"epoch": epoch + 1, "triplet": tot_t / steps, "ce": tot_c / steps, "acc": acc / steps})
         if log:
             _log_epoch(cfg.kind, epochs, history[-1], start)
+        if checkpoint is not None and epoch + 1 < epochs:  # a long run on a busy machine keeps what it has
+            checkpoint(model, {"epoch": epoch + 1, "history": list(history)})
     model.eval()
     return model, {"steps_per_epoch": steps, "history": history, "seconds": round(time.perf_counter() - start, 1)}
+
+
+def widen(trained: MCPNet, cfg: NetConfig) -> MCPNet:
+    """A network of `cfg` (more point features appended) that computes what `trained` computed: the weights
+    of the new inputs start at zero, every other weight is copied."""
+    model = MCPNet(cfg)
+    state = trained.state_dict()
+    new = model.state_dict()
+    for key, value in state.items():
+        if new[key].shape == value.shape:
+            new[key] = value.clone()
+        else:  # the first layer of point_mlp: [context, point features], the added features at the end
+            grown = torch.zeros_like(new[key])
+            grown[:, : value.shape[1]] = value
+            new[key] = grown
+    model.load_state_dict(new)
+    return model
 
 
 def _log_epoch(kind: str, epochs: int, h: dict[str, float], start: float) -> None:
@@ -384,10 +454,43 @@ def stage_all(seeds: Iterable[int], scans: int, cfg: NetConfig, log: bool = True
     return missions
 
 
-def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict[str, Any]:
-    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights.
+def stage_uris(uris: Iterable[str], cfg: NetConfig, log: bool = True) -> list[Mission]:
+    """Staged missions of simulator URIs."""
+    missions = []
+    for uri in uris:
+        t0 = time.perf_counter()
+        missions.append(stage_mission(open_uri(uri), cfg))
+        if log:
+            m = missions[-1]
+            print(
+                f"staged {uri}: {len(m.rows)} points, {len(m.positions)} voxels ({time.perf_counter() - t0:.1f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
+    return missions
+
+
+KINDS: Final[tuple[str, ...]] = ("mcpnet", "mcpnet-nocontext", "pointnet")
+
+
+def transfer_config() -> NetConfig:
+    """The transfer candidate's configuration (#12): the point features followed by the geometry features."""
+    features = POINT_FEATURES + GEOMETRY_FEATURES
+    return NetConfig(kind="mcpnet", point_dim=len(features), features=features)
+
+
+def train(
+    out: Path | None = None,
+    seed: int = 0,
+    epochs: int | None = None,
+    force: bool = False,
+    kinds: tuple[str, ...] = KINDS,
+) -> dict[str, Any]:
+    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights
+    (the shipped ones: plain missions of both families).
 
     `out` is the MCPNet weights file (default models/weights/mcpnet.pt); the baselines go beside it.
+    `kinds` limits which networks are trained.
     """
     torch.set_num_threads(1)  # on a shared 2-core machine a second intra-op thread mostly waits
     out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet.pt"
@@ -396,6 +499,7 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
         "mcpnet-nocontext": out.with_name(out.stem + "_nocontext.pt"),
         "pointnet": out.with_name("pointnet.pt") if out.stem == "mcpnet" else out.with_name(out.stem + "_pointnet.pt"),
     }
+    paths = {k: p for k, p in paths.items() if k in kinds}
     for p in paths.values():
         if p.exists() and not force:
             raise OutputError("weights file exists; pass --force to overwrite", p)
@@ -418,17 +522,81 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
         "staging_seconds": round(time.perf_counter() - start, 1),
     }
     for kind in ("mcpnet", "mcpnet-nocontext"):
+        if kind not in kinds:
+            continue
         cfg = NetConfig(kind=kind)
         model, fig = train_mcpnet(pool, cfg, epochs, seed)
         fig["parameters"] = num_parameters(model)
         save_weights(paths[kind], model, cfg, {**figures, **fig})
         figures[kind] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
-    cfg = NetConfig(kind="pointnet")
-    model, fig = train_pointnet(missions, cfg, pointnet_epochs, seed)
-    fig["parameters"] = num_parameters(model)
-    save_weights(paths["pointnet"], model, cfg, {**figures, **fig})
-    figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+    if "pointnet" in kinds:
+        cfg = NetConfig(kind="pointnet")
+        model, fig = train_pointnet(missions, cfg, pointnet_epochs, seed)
+        fig["parameters"] = num_parameters(model)
+        save_weights(paths["pointnet"], model, cfg, {**figures, **fig})
+        figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
     figures["weights"] = {k: str(p) for k, p in paths.items()}
     figures["sizes_bytes"] = {k: p.stat().st_size for k, p in paths.items()}
     figures["total_seconds"] = round(time.perf_counter() - start, 1)
     return figures
+
+
+def train_transfer(
+    out: Path | None = None,
+    seed: int = 0,
+    epochs: int | None = None,
+    force: bool = False,
+    init: Path | None = None,
+) -> dict[str, Any]:
+    """The transfer candidate (#12, not shipped: it lost to the shipped MCPNet on validation, see README):
+    the families' MCPNet (`init`, default the shipped models/weights/mcpnet.pt, which `train` makes) widened
+    by the geometry features and fine-tuned on randomised missions of the training generators, colour dropped
+    for half the points. Writes models/weights/mcpnet_transfer.pt unless `out` says otherwise; run it with
+    `--set label.weights=...`."""
+    from aftershock.models.mcpnet import load_model
+
+    torch.set_num_threads(1)
+    out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet_transfer.pt"
+    if out.exists() and not force:
+        raise OutputError("weights file exists; pass --force to overwrite", out)
+    init = Path(init) if init is not None else WEIGHTS_DIR / "mcpnet.pt"
+    first, first_cfg, _ = load_model(init, kind="mcpnet")
+    epochs = TRANSFER_EPOCHS if epochs is None else epochs
+    start = time.perf_counter()
+    uris = transfer_uris(TRANSFER_SEEDS, TRANSFER_SCANS)
+    pool = Pool(stage_uris(uris, NetConfig()))
+    recipe = {
+        "train_seeds": sorted(set(TRAIN_SEEDS) | set(TRANSFER_SEEDS)),
+        "generators": list(split.TRAIN_GENERATORS),
+        "held_out_generator": split.HELDOUT_GENERATOR,
+        "missions": uris,
+        "scans_per_mission": TRANSFER_SCANS,
+        "color_drop": TRANSFER_COLOR_DROP,
+        "init": init.name,
+        "fine_tune_epochs": epochs,
+        "training_points": len(pool),
+        "range_m": first_cfg.range_m,
+        "seed": seed,
+        "staging_seconds": round(time.perf_counter() - start, 1),
+    }
+    cfg = transfer_config()
+    model, fig = train_mcpnet(
+        pool,
+        cfg,
+        epochs,
+        seed,
+        color_drop=TRANSFER_COLOR_DROP,
+        init=first,
+        learning_rate=TRANSFER_LEARNING_RATE,
+    )
+    fig["parameters"] = num_parameters(model)
+    save_weights(out, model, cfg, {**recipe, **fig})
+    return (
+        recipe
+        | {k: v for k, v in fig.items() if k != "history"}
+        | {
+            "weights": str(out),
+            "size_bytes": out.stat().st_size,
+            "total_seconds": round(time.perf_counter() - start, 1),
+        }
+    )

@@ -14,6 +14,11 @@ POINT_FEATURES: Final[tuple[str, ...]] = ("x", "y", "z", "r", "g", "b", "has_col
 CONTEXT_FEATURES: Final[tuple[str, ...]] = ("dx", "dy", "dz", "dr", "dg", "db")
 POINT_DIM: Final = len(POINT_FEATURES)
 CONTEXT_DIM: Final = len(CONTEXT_FEATURES)
+# Local shape of a voxel's neighbourhood, from its context points (what transfers between buildings: how
+# upright, flat, line-like or scattered the surface is, and how far it reaches up and down).
+GEOMETRY_FEATURES: Final[tuple[str, ...]] = ("abs_nz", "planarity", "linearity", "sphericity", "dz_std")
+# The layouts this version can run: MCPNet with geometry features (#12), and the earlier colour-and-position one.
+LAYOUTS: Final[tuple[tuple[str, ...], ...]] = (POINT_FEATURES + GEOMETRY_FEATURES, POINT_FEATURES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,3 +50,8 @@ class NetConfig:
         d["features"] = tuple(d.get("features", ()))
         d["context_features"] = tuple(d.get("context_features", ()))
         return NetConfig(**d)
+
+    @property
+    def geometry(self) -> bool:
+        """Whether the point features end with the local geometry features."""
+        return self.features[len(POINT_FEATURES) :] == GEOMETRY_FEATURES

@@ -36,19 +36,19 @@ SIM = "sim://office?seed=950&sensor=vlp16&scans=25"
 MAX_WEIGHTS_BYTES = 5 * 1024 * 1024
 
 
-def _inputs(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _inputs(n: int, seed: int, dim: int = 7) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
     mask = torch.rand(n, 50, generator=g) > 0.2
-    return torch.randn(n, 7, generator=g), torch.randn(n, 50, 6, generator=g), mask
+    return torch.randn(n, dim, generator=g), torch.randn(n, 50, 6, generator=g), mask
 
 
 @pytest.mark.parametrize("kind", ["mcpnet", "mcpnet-nocontext"])
 def test_a_points_output_does_not_depend_on_its_batch_mates(kind: str) -> None:
-    model, _, _ = load_model(default_weights(kind), kind=kind)
-    p, c, m = _inputs(1, 0)
+    model, cfg, _ = load_model(default_weights(kind), kind=kind)
+    p, c, m = _inputs(1, 0, cfg.point_dim)
     alone = model(p, c, m)
     for seed in (1, 2):
-        op, oc, om = _inputs(63, seed)
+        op, oc, om = _inputs(63, seed, cfg.point_dim)
         emb, logits = model(
             torch.cat([op[:20], p, op[20:]]), torch.cat([oc[:20], c, oc[20:]]), torch.cat([om[:20], m, om[20:]])
         )
@@ -136,7 +136,8 @@ def test_shipped_weights_load_and_are_small(kind: str) -> None:
     model, cfg, figures = load_model(path, kind=kind)
     assert cfg.kind == kind
     assert path.stat().st_size < MAX_WEIGHTS_BYTES
-    assert figures["train_seeds"] == list(TRAIN_SEEDS)
+    # trained on training seeds only (MCPNet since #12 on a subset of them, with the other generators)
+    assert set(figures["train_seeds"]) <= set(TRAIN_SEEDS) and not set(figures["train_seeds"]) & set(HELDOUT_SEEDS)
     if kind == "mcpnet":
         assert 140_000 < num_parameters(model) < 150_000  # the study's ~146 k
 

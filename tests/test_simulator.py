@@ -359,7 +359,7 @@ def test_simulate_command(tmp_path):
     again = subprocess.run(args, capture_output=True, text=True, timeout=120)
     assert again.returncode == 2 and "already exists" in again.stderr
     bad = subprocess.run([*args[:3], str(tmp_path / "x.mcap"), "--scene", "moon"], capture_output=True, text=True)
-    assert bad.returncode == 2 and "unknown scene family" in bad.stderr and "Traceback" not in bad.stderr
+    assert bad.returncode == 2 and "unknown scene generator" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_sample_recording_is_a_small_labelled_mission():

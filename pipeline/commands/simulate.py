@@ -22,8 +22,27 @@ def register(app: typer.Typer) -> None:
     def simulate(
         out: Path | None = typer.Option(None, "--out", "-o", help="MCAP file to write the mission to."),
         seed: int = typer.Option(0, "--seed", help="Building and mission seed: the same seed, the same bytes."),
-        scene: str = typer.Option("disaster", "--scene", help="Scene family: office or disaster."),
-        sensor: str = typer.Option("vlp16", "--sensor", help="Sensor profile: vlp16, vlp16-20hz or dense."),
+        scene: str = typer.Option(
+            "disaster", "--scene", help="Scene generator: office, disaster (the families), hall or wing."
+        ),
+        sensor: str = typer.Option(
+            "vlp16",
+            "--sensor",
+            help="Sensor: vlp16, vlp16-20hz, dense, vlp32c, os0-32/64/128, os1-32/64/128 (published beam tables).",
+        ),
+        robot: str = typer.Option("legged", "--robot", help="Robot: legged, wheeled or tracked."),
+        height: float | None = typer.Option(None, "--height", help="LiDAR mount height above the floor, 0.3-1.8 m."),
+        tilt: float | None = typer.Option(None, "--tilt", help="LiDAR pitched down by this many degrees."),
+        turn_rate: float | None = typer.Option(None, "--turn-rate", help="Fastest turn of the robot, deg/s."),
+        sway: float | None = typer.Option(None, "--sway", help="Body roll amplitude of the gait, degrees."),
+        palette: str | None = typer.Option(None, "--palette", help="Colours: natural, random, grey or swap."),
+        no_color: bool = typer.Option(False, "--no-color", help="A LiDAR without a camera: no rgb field."),
+        conditions: str | None = typer.Option(
+            None, "--conditions", help="plain, or random: noise, dropouts, mixed edges, glass, mirrors."
+        ),
+        randomize: bool = typer.Option(
+            False, "--randomize", help="Draw robot settings, palette and conditions from the seed."
+        ),
         scans: int | None = typer.Option(None, "--scans", help="Number of scans (default 100)."),
         duration: float | None = typer.Option(None, "--duration", help="Mission length in seconds."),
         story: int = typer.Option(0, "--story", help="Story the robot walks (0 = ground floor)."),
@@ -40,14 +59,32 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Simulate a robot mission through a procedural building: labelled scans and true poses."""
         from aftershock.pipeline.cloud_io import check_output, write_atomically, write_cloud
-        from aftershock.sources.simulated import SimSpec, check_spec, make_mission
+        from aftershock.sources.simulated import SimSpec, check_spec, make_mission, resolve
         from aftershock.sources.simulator.recording import truth_to_dict, write_mission
 
         if out is None and static_out is None and truth_out is None:
             raise InputError("nothing to write: give --out, --static-out and/or --truth-out")
         if scans is not None and duration is not None:
             raise InputError("give --scans or --duration, not both")
-        spec = SimSpec(scene, seed, sensor, scans, duration, story, speed, spacing)
+        spec = SimSpec(
+            scene,
+            seed,
+            sensor,
+            scans,
+            duration,
+            story,
+            speed,
+            spacing,
+            robot=robot,
+            height_m=height,
+            tilt_deg=tilt,
+            turn_deg_s=turn_rate,
+            sway_deg=sway,
+            palette=palette,
+            color=not no_color,
+            conditions=conditions,
+            randomize=randomize,
+        )
         check_spec(spec, spec.uri())
         for p in (out, static_out, truth_out):
             if p is not None:
@@ -62,6 +99,9 @@ def register(app: typer.Typer) -> None:
             "sensor": sensor,
             "story": story,
             "building_and_plan_s": round(setup_s, 3),
+            "generator": scene,
+            "color": not no_color,
+            **resolve(spec).to_dict(),
         }
         if out is not None:
             from aftershock.pipeline.progress import track
@@ -69,6 +109,7 @@ def register(app: typer.Typer) -> None:
             t1 = time.perf_counter()
             stream = track(mission, total=len(mission), desc="simulating", show=progress.enabled(quiet))
             meta = {"family": scene, "seed": seed, "sensor": sensor, "story": story, "scans": len(mission)}
+            meta["uri"] = spec.uri()  # everything that chose this mission, randomisation included
             stats = write_mission(out, stream, truth=mission.scene.truth, metadata=meta, force=force)
             dt = time.perf_counter() - t1
             summary.update(

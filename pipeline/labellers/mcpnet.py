@@ -23,6 +23,7 @@ from aftershock.models.mcpnet import (
     default_weights,
     load_model,
     point_features,
+    with_geometry_of_rows,
 )
 from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.config import Config, Environment
@@ -107,6 +108,8 @@ class MCPNetLabeller:
                 if use_ctx:
                     draws = context_draws(vmap.keys[r], self.num)
                     ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, uniform=draws)
+                    if self.net.geometry:  # the weights' layout says whether they read the local shape
+                        pf = with_geometry_of_rows(pf, vmap.positions, r, ctx_rows)
                     owner, neighbour = distinct_pairs(ctx_rows)
                     c, _ = context_features(vmap.positions, colors, r[owner], neighbour[:, None])
                     pooled = self.model.pool_pairs(torch.from_numpy(c[:, 0]), torch.from_numpy(owner), len(r))

@@ -51,6 +51,13 @@ FABRIC: Final = Material("fabric", (70, 84, 120), 0.25, 0.05)
 GLASS: Final = Material("glass", (130, 170, 190), 0.1, 0.02)
 WHITEBOARD: Final = Material("whiteboard", (238, 240, 242), 0.7, 0.01)
 RUBBLE: Final = Material("rubble", (140, 128, 112), 0.3, 0.2)
+MIRROR: Final = Material("mirror", (200, 205, 210), 0.05, 0.0)
+
+# What a laser does at a surface (LabelledMesh.optic): returns from it, may pass through it, is reflected.
+OPAQUE: Final = 0
+TRANSPARENT: Final = 1
+SPECULAR: Final = 2
+_OPTICS: Final = {"glass": TRANSPARENT, "mirror": SPECULAR}
 
 
 def rotation_z(yaw: float) -> np.ndarray:
@@ -78,6 +85,7 @@ class LabelledMesh:
     reflectivity: np.ndarray  # (T,) float32
     texture: np.ndarray  # (T,) float32 mottling amplitude
     shade: np.ndarray  # (T,) float32 lighting factor of the object (lighting-like variation)
+    optic: np.ndarray | None = None  # (T,) uint8 OPAQUE / TRANSPARENT (glass) / SPECULAR (mirror); None: all opaque
 
     def __len__(self) -> int:
         return len(self.triangles)
@@ -106,6 +114,7 @@ class _Boxes:
     shade: list[float] = field(default_factory=list)
     story: list[int] = field(default_factory=list)
     span: list[bool] = field(default_factory=list)
+    optic: list[int] = field(default_factory=list)
 
 
 class MeshBuilder:
@@ -159,6 +168,7 @@ class MeshBuilder:
         b.shade.append(shade)
         b.story.append(story)
         b.span.append(span)
+        b.optic.append(_OPTICS.get(material.name, OPAQUE))
 
     def build(self) -> tuple[LabelledMesh, np.ndarray, np.ndarray]:
         """The mesh, and per vertex its story (int) and whether its box spans the story (bool)."""
@@ -180,6 +190,7 @@ class MeshBuilder:
             reflectivity=np.asarray(b.reflectivity, np.float32)[per_tri],
             texture=np.asarray(b.texture, np.float32)[per_tri],
             shade=np.asarray(b.shade, np.float32)[per_tri],
+            optic=np.asarray(b.optic, np.uint8)[per_tri],
         )
         story = np.repeat(np.asarray(b.story, np.int64), 8)
         span = np.repeat(np.asarray(b.span, bool), 8)

@@ -12,8 +12,11 @@ from typing import Final
 
 import numpy as np
 
+from aftershock.pipeline.classes import UNLABELLED
 from aftershock.pipeline.types import Scan
+from aftershock.sources.simulator.conditions import Conditions, apply_optics, dark_losses, mix_edges
 from aftershock.sources.simulator.profiles import SensorProfile
+from aftershock.sources.simulator.robots import RobotSpec
 from aftershock.sources.simulator.scene import Scene
 from aftershock.sources.simulator.trajectory import WALK_SPEED_MPS, Trajectory, plan_tour
 
@@ -30,7 +33,9 @@ class Mission:
     Sweeps follow each other at the sensor rate, or (with a spacing, from the argument or the profile)
     start whenever the robot has walked `spacing_m` further or turned as much (`TURN_M_PER_RAD`); a
     sweep never starts before the previous one ended. `scans` (default `DEFAULT_SCANS`) or `duration_s`
-    sets how many there are; `scan(k)` gives any sweep, also beyond that count.
+    sets how many there are; `scan(k)` gives any sweep, also beyond that count. `robot` sets the mount,
+    turn rate and sway (default: the legged robot), `conditions` the sensor's imperfections beyond its
+    profile (conditions.py), `color=False` a LiDAR without a camera (scans carry no colours).
     """
 
     def __init__(
@@ -45,6 +50,9 @@ class Mission:
         speed: float = WALK_SPEED_MPS,
         spacing_m: float | None = None,
         start_ns: int = START_NS,
+        robot: RobotSpec | None = None,
+        conditions: Conditions | None = None,
+        color: bool = True,
     ) -> None:
         if not 0 <= story < scene.num_stories:
             raise ValueError(f"story {story} is not in this building (0..{scene.num_stories - 1})")
@@ -53,7 +61,9 @@ class Mission:
         self.scene, self.profile, self.seed, self.story = scene, profile, int(seed), story
         self.spacing_m = spacing_m or profile.spacing_m
         self.start_ns = int(start_ns)
-        self.trajectory: Trajectory = plan_tour(scene, story, self.seed, speed)
+        self.robot, self.color = robot, bool(color)
+        self.conditions = conditions if conditions is not None and conditions != Conditions() else None
+        self.trajectory: Trajectory = plan_tour(scene, story, self.seed, speed, robot)
         self._starts = np.zeros(0)
         if scans is None:
             scans = DEFAULT_SCANS if duration_s is None else self.count_before(duration_s)
@@ -105,19 +115,33 @@ class Mission:
         world_dirs = np.matmul(self._dirs, poses[:, :3, :3].transpose(0, 2, 1)).reshape(-1, 3)
         origins = np.repeat(poses[:, :3, 3], prof.beams, axis=0)
         t, tri, cos = self.scene.raycaster.cast(origins, world_dirs)
+        cond, ghost, t_surface = self.conditions, None, t
+        if cond is not None:  # its own random stream: the plain simulator's draws stay as they were
+            erng = np.random.default_rng([self.scene.seed, self.seed, k, 5])
+            t, tri, cos, ghost = apply_optics(self.scene, cond, origins, world_dirs, t, tri, cos, erng)
+            t_surface = t
+            t = mix_edges(t.reshape(self._times.shape), cond, erng).reshape(-1)
+            t[dark_losses(self.scene, cond, t, tri, erng)] = np.inf
+        dropout = prof.dropout * (1.0 if cond is None else cond.dropout_scale)
+        noise = prof.range_noise_m * (1.0 if cond is None else cond.noise_scale)
         ok = (t >= prof.min_range_m) & (t <= prof.max_range_m)
-        if prof.dropout > 0:
-            ok &= rng.random(len(t)) >= prof.dropout
+        if dropout > 0:
+            ok &= rng.random(len(t)) >= dropout
         idx = np.flatnonzero(ok)
         rng_m = t[idx]
-        if prof.range_noise_m > 0:
-            rng_m = rng_m + rng.normal(0, prof.range_noise_m, len(idx))
+        if noise > 0:
+            rng_m = rng_m + rng.normal(0, noise, len(idx))
         # Coordinates on a 1/512 m grid (float32-exact, far below the range noise): what a driver's
         # fixed-point packets give, and it lets zstd find the redundancy that real logs have.
         points = np.round(self._dirs.reshape(-1, 3)[idx] * rng_m[:, None] * QUANTUM_INV) / QUANTUM_INV
-        surface = origins[idx] + world_dirs[idx] * t[idx, None]
+        surface = origins[idx] + world_dirs[idx] * t_surface[idx, None]
         tri_hit = tri[idx]
         colors, intensity, _ = self.scene.look(tri_hit, surface, cos[idx], rng)
+        class_ids = self.scene.mesh.class_ids[tri_hit].copy()
+        instance_ids = self.scene.mesh.instance_ids[tri_hit].copy()
+        if ghost is not None:  # a mirror's ghost is where no surface is: no class, no object
+            class_ids[ghost[idx]] = UNLABELLED
+            instance_ids[ghost[idx]] = 0
         intensity = np.round(intensity)  # integer reflectivity 0..255, as the VLP-16 reports it
         times_ns = np.round(self._times.reshape(-1)[idx] * 1e9)
         stamp_ns = self.start_ns + round(t0 * 1e9)
@@ -127,11 +151,11 @@ class Mission:
             seq=k,
             frame_id=LIDAR_FRAME,
             intensity=intensity,
-            colors=colors,
+            colors=colors if self.color else None,
             times=times_ns * 1e-9,
             ring=self._ring.reshape(-1)[idx].copy(),
-            class_ids=self.scene.mesh.class_ids[tri_hit].copy(),
-            instance_ids=self.scene.mesh.instance_ids[tri_hit].copy(),
+            class_ids=class_ids,
+            instance_ids=instance_ids,
             gt_pose=self.trajectory.poses(np.array([t0]))[0],
             log_time_ns=stamp_ns + round(prof.sweep_s * 1e9),
             topic=POINTS_TOPIC,

@@ -94,6 +94,39 @@ _VLP16_ELEVATIONS: Final = (
     15.0,
 )
 
+# VLP-32C: the 32 elevations in firing order, -25 to +15 degrees, dense around the horizon (Velodyne VLP-32C
+# user manual, "Laser ID / vertical angle" table); lasers fire in pairs, 16 groups per 55.296 us cycle.
+_VLP32C_ELEVATIONS: Final = (
+    -25.0, -1.0, -1.667, -15.639, -11.31, 0.0, -0.667, -8.843,
+    -7.254, 0.333, -0.333, -6.148, -5.333, 1.333, 0.667, -4.0,
+    -4.667, 1.667, 1.0, -3.667, -3.333, 3.333, 2.333, -2.667,
+    -3.0, 7.0, 4.667, -2.333, -2.0, 15.0, 10.333, -1.333,
+)  # fmt: skip
+
+
+def _uniform(fov_deg: float, beams: int) -> tuple[float, ...]:
+    """Ouster's uniform beam configuration: `beams` elevations evenly over the vertical field of view
+    (OS0: 90 degrees, +45 to -45; OS1: 45 degrees, +22.5 to -22.5; datasheets rev 7), top beam first as the
+    sensor reports them; all beams of a column fire together."""
+    return tuple(round(float(e), 4) for e in np.linspace(fov_deg / 2, -fov_deg / 2, beams))
+
+
+def _ouster(model: str, beams: int) -> SensorProfile:
+    os0 = model == "os0"
+    return SensorProfile(
+        name=f"{model}-{beams}",
+        elevations_deg=_uniform(90.0 if os0 else 45.0, beams),
+        azimuth_step_deg=360.0 / 1024,  # 1024 columns at 10 Hz
+        rate_hz=10.0,
+        min_range_m=0.5,
+        max_range_m=50.0 if os0 else 120.0,
+        range_noise_m=0.015 if os0 else 0.01,
+        dropout=0.02,
+        description=f"Ouster {model.upper()}-{beams}: {beams} beams uniform over "
+        f"{'±45' if os0 else '±22.5'}°, 1024 x 10 Hz, {'50' if os0 else '120'} m",
+    )
+
+
 PROFILES: Final[dict[str, SensorProfile]] = {
     "vlp16": SensorProfile(
         name="vlp16",
@@ -133,6 +166,19 @@ PROFILES: Final[dict[str, SensorProfile]] = {
         description="research scanner of the original study: 360° x 1°, elevation −45° to 80°, 5 m, "
         "a scan every 0.2 m, no noise",
     ),
+    "vlp32c": SensorProfile(
+        name="vlp32c",
+        elevations_deg=_VLP32C_ELEVATIONS,
+        azimuth_step_deg=0.2,
+        rate_hz=10.0,
+        min_range_m=0.5,
+        max_range_m=200.0,
+        range_noise_m=0.015,
+        dropout=0.02,
+        firing_interval_s=1.152e-6,  # two lasers per 2.304 us group
+        description="Velodyne VLP-32C: 32 beams −25…+15° (dense near the horizon), 0.2° at 10 Hz, ~200 m",
+    ),
+    **{f"{m}-{n}": _ouster(m, n) for m in ("os0", "os1") for n in (32, 64, 128)},
 }
 
 
@@ -140,4 +186,4 @@ def get_profile(name: str) -> SensorProfile:
     try:
         return PROFILES[name]
     except KeyError:
-        raise InputError(f"unknown sensor profile {name!r} (known: {', '.join(PROFILES)})") from None
+        raise InputError(f"unknown sensor {name!r} (known: {', '.join(PROFILES)})") from None

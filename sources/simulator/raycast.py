@@ -23,6 +23,11 @@ class Raycaster:
         self._normals = mesh.normals().astype(np.float32)
         self.threads = threads
 
+    @property
+    def normals(self) -> np.ndarray:
+        """Unit face normals (T, 3) float32."""
+        return self._normals
+
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rays from (N, 3) origins along (N, 3) unit directions."""
         rays = np.empty((len(directions), 6), np.float32)

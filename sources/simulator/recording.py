@@ -1,11 +1,11 @@
 """Write a simulated mission as a ROS 2 MCAP: labelled PointCloud2 scans, the true pose, the scene's truth.
 
 - `/lidar/points` (`sensor_msgs/msg/PointCloud2`, frame `lidar`): x y z intensity rgb (float32, rgb packed
-  0x00RRGGBB), t (uint32 ns after the header stamp), ring (uint16), class_id (uint16), instance_id
-  (uint32). Points are in the sensor frame at the moment each was measured; the stamp is the sweep start.
-  Logged when the sweep ends, as a driver would publish it.
+  0x00RRGGBB; no rgb field for a mission without colour), t (uint32 ns after the header stamp), ring
+  (uint16), class_id (uint16), instance_id (uint32). Points are in the sensor frame at the moment each was
+  measured; the stamp is the sweep start. Logged when the sweep ends, as a driver would publish it.
 - `/ground_truth/pose` (`geometry_msgs/msg/PoseStamped`, frame `map`): the sensor pose at the sweep start.
-- Metadata `aftershock.simulator` (family, seed, sensor, story, scans) and the attachment `truth.json`
+- Metadata `aftershock.simulator` (family, seed, sensor, story, scans, uri) and the attachment `truth.json`
   (stories, drift, tilt, cracks, instance classes).
 Chunks are zstd-compressed; nothing depends on the clock, so a seed always gives the same bytes.
 """
@@ -49,17 +49,21 @@ def pack_rgb(colors: np.ndarray) -> np.ndarray:
 def scan_columns(scan: Scan) -> dict[str, np.ndarray]:
     """The PointCloud2 columns of a simulated scan, in the documented field order."""
     n = len(scan)
-    return {
+    cols = {
         "x": scan.points[:, 0].astype(np.float32),
         "y": scan.points[:, 1].astype(np.float32),
         "z": scan.points[:, 2].astype(np.float32),
         "intensity": scan.intensity if scan.intensity is not None else np.zeros(n, np.float32),
-        "rgb": pack_rgb(scan.colors if scan.colors is not None else np.zeros((n, 3), np.uint8)),
-        "t": np.round((scan.times if scan.times is not None else np.zeros(n)) * 1e9).astype(np.uint32),
-        "ring": scan.ring if scan.ring is not None else np.zeros(n, np.uint16),
-        "class_id": scan.class_ids.astype(np.uint16),
-        "instance_id": scan.instance_ids.astype(np.uint32),
     }
+    if scan.colors is not None:  # a LiDAR without a camera has no rgb field at all, as on real robots
+        cols["rgb"] = pack_rgb(scan.colors)
+    cols.update(
+        t=np.round((scan.times if scan.times is not None else np.zeros(n)) * 1e9).astype(np.uint32),
+        ring=scan.ring if scan.ring is not None else np.zeros(n, np.uint16),
+        class_id=scan.class_ids.astype(np.uint16),
+        instance_id=scan.instance_ids.astype(np.uint32),
+    )
+    return cols
 
 
 @dataclass(slots=True)

@@ -17,6 +17,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 if TYPE_CHECKING:
+    from aftershock.sources.simulator.robots import RobotSpec
     from aftershock.sources.simulator.scene import Room, Scene
 
 CELL_M: Final = 0.1
@@ -146,6 +147,12 @@ class Trajectory:
     waypoints: np.ndarray  # (W, 2)
     speed: float = WALK_SPEED_MPS
     gait_phase: float = 0.0
+    # the robot (robots.py): sensor mount and body motion; the defaults are the legged robot's
+    sensor_height_m: float = SENSOR_HEIGHT_M
+    tilt_rad: float = 0.0
+    sway_rad: float = float(np.deg2rad(GAIT_TILT_DEG))
+    bob_m: float = GAIT_BOB_M
+    gait_hz: float = GAIT_HZ
 
     @property
     def length(self) -> float:
@@ -173,10 +180,10 @@ class Trajectory:
         """Sensor -> world 4 x 4 poses (N, 4, 4) at `times` (seconds since the mission start)."""
         t = np.atleast_1d(np.asarray(times, np.float64))
         x, y, yaw = self._at(t, self.xy[:, 0]), self._at(t, self.xy[:, 1]), self._at(t, self.yaw)
-        ph = 2 * np.pi * GAIT_HZ * t + self.gait_phase
-        roll = np.deg2rad(GAIT_TILT_DEG) * np.sin(ph)
-        pitch = np.deg2rad(GAIT_TILT_DEG) * 0.6 * np.sin(2 * ph + 1.0)
-        z = self.grid.floor_z + SENSOR_HEIGHT_M + GAIT_BOB_M * np.sin(2 * ph)
+        ph = 2 * np.pi * self.gait_hz * t + self.gait_phase
+        roll = self.sway_rad * np.sin(ph)
+        pitch = self.sway_rad * 0.6 * np.sin(2 * ph + 1.0) + self.tilt_rad
+        z = self.grid.floor_z + self.sensor_height_m + self.bob_m * np.sin(2 * ph)
         cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
         rot = np.empty((len(t), 3, 3))
         rot[:, 0, 0], rot[:, 0, 1], rot[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
@@ -190,15 +197,22 @@ class Trajectory:
         return out
 
 
-def _timing(s: np.ndarray, yaw: np.ndarray, speed: float) -> tuple[np.ndarray, np.ndarray]:
+def _timing(
+    s: np.ndarray, yaw: np.ndarray, speed: float, turn_rate: float = TURN_RATE_RAD_S
+) -> tuple[np.ndarray, np.ndarray]:
     """Time and progress along the samples: each step takes its walking time or its turning time."""
     ds, dyaw = np.diff(s), np.abs(np.diff(yaw))
-    dt = np.maximum(ds / speed, dyaw / TURN_RATE_RAD_S)
+    dt = np.maximum(ds / speed, dyaw / turn_rate)
     return np.r_[0.0, np.cumsum(dt)], np.r_[0.0, np.cumsum(ds + TURN_M_PER_RAD * dyaw)]
 
 
-def plan_tour(scene: Scene, story: int, seed: int, speed: float = WALK_SPEED_MPS) -> Trajectory:
-    """Start at one end of the corridor, visit every reachable room (nearest first), come back."""
+def plan_tour(
+    scene: Scene, story: int, seed: int, speed: float = WALK_SPEED_MPS, robot: RobotSpec | None = None
+) -> Trajectory:
+    """Start at one end of the corridor, visit every reachable room (nearest first), come back.
+
+    `robot` sets the mount, turn rate and sway (default: the legged robot the simulator always had);
+    `speed` is the driving speed."""
     rng = np.random.default_rng([scene.seed, seed, story, 11])
     grid = free_space(scene, story)
     rooms = [r for r in scene.rooms if r.story == story]
@@ -238,7 +252,8 @@ def plan_tour(scene: Scene, story: int, seed: int, speed: float = WALK_SPEED_MPS
     # close the loop: turn on the spot at the start until facing the way the loop begins
     s, xy = np.r_[s, s[-1]], np.r_[xy, xy[-1:]]
     yaw = np.r_[yaw, yaw[0] + 2 * np.pi * np.round((yaw[-1] - yaw[0]) / (2 * np.pi))]
-    time, progress = _timing(s, yaw, speed)
+    turn_rate = TURN_RATE_RAD_S if robot is None else robot.turn_rate_rad_s
+    time, progress = _timing(s, yaw, speed, turn_rate)
     keep = np.r_[True, np.diff(time) > 1e-9]
     wp = grid.cell_xy(np.array([[g // ny, g % ny] for g in visited])) if visited else xy[:1]
     return Trajectory(
@@ -251,7 +266,18 @@ def plan_tour(scene: Scene, story: int, seed: int, speed: float = WALK_SPEED_MPS
         wp,
         speed=speed,
         gait_phase=float(rng.uniform(0, 2 * np.pi)),
+        **({} if robot is None else _robot_motion(robot)),
     )
+
+
+def _robot_motion(robot: RobotSpec) -> dict[str, float]:
+    return {
+        "sensor_height_m": robot.mount_height_m,
+        "tilt_rad": float(np.deg2rad(robot.tilt_deg)),
+        "sway_rad": float(np.deg2rad(robot.sway_deg)),
+        "bob_m": robot.bob_m,
+        "gait_hz": robot.gait_hz,
+    }
 
 
 def _room_goals(grid: FreeGrid, room: Room, tile_m: float = WAYPOINT_TILE_M) -> list[tuple[int, int]]:

@@ -1,0 +1,62 @@
+"""Scene generators by name: the two families of `building.py` and generators built independently of them.
+
+    scene = generate("wing", seed=3, palette="random")
+
+`office` and `disaster` are the families (families.py); `hall` (open hall on a column grid, mezzanine,
+racks) and `wing` (a turning corridor with doors along it, L-shaped rooms round closets and washrooms)
+share none of their layout, furniture or damage code. `palette` repaints any of them (looks.py).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Final
+
+from aftershock.pipeline.errors import InputError
+from aftershock.sources.simulator.scene import Scene
+
+
+def _family(name: str) -> Callable[[int], Scene]:
+    def build(seed: int) -> Scene:
+        from aftershock.sources.simulator.building import build_scene
+
+        return build_scene(name, seed)
+
+    return build
+
+
+def _hall(seed: int) -> Scene:
+    from aftershock.sources.simulator.generators.hall import build
+
+    return build(seed)
+
+
+def _wing(seed: int) -> Scene:
+    from aftershock.sources.simulator.generators.wing import build
+
+    return build(seed)
+
+
+GENERATORS: Final[dict[str, Callable[[int], Scene]]] = {
+    "office": _family("office"),
+    "disaster": _family("disaster"),
+    "hall": _hall,
+    "wing": _wing,
+}
+
+
+def check_generator(name: str) -> None:
+    if name not in GENERATORS:
+        raise InputError(f"unknown scene generator {name!r} (known: {', '.join(GENERATORS)})")
+
+
+def generate(name: str, seed: int, palette: str = "natural") -> Scene:
+    """The scene of generator `name` and `seed` (deterministic), repainted with `palette`."""
+    from aftershock.sources.simulator.looks import check_palette, repaint
+
+    check_generator(name)
+    check_palette(palette)
+    scene = GENERATORS[name](int(seed))
+    if palette != "natural":
+        repaint(scene, palette, int(seed))
+    return scene
