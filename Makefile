@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-all train screenshot clean
+.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -46,13 +46,17 @@ bench-io: setup
 bench-mcpnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_mcpnet.py
 
+# Objects shown against true objects (instance precision/recall) on held-out missions, KISS-ICP and true poses.
+bench-objects: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_objects.py
+
 bench-cracks: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_cracks.py
 
 bench-lrgnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_lrgnet.py
 
-bench-all: bench bench-io bench-mcpnet bench-cracks bench-lrgnet
+bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet
 
 train: setup
 	$(BIN)/aftershock train mcpnet
