@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-transfer bench-all train screenshot clean
+.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -46,6 +46,10 @@ bench-io: setup
 bench-mcpnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_mcpnet.py
 
+# Objects shown against true objects (instance precision/recall) on held-out missions, KISS-ICP and true poses.
+bench-objects: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_objects.py
+
 bench-cracks: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_cracks.py
 
@@ -56,7 +60,7 @@ bench-lrgnet: setup
 bench-transfer: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_transfer.py
 
-bench-all: bench bench-io bench-mcpnet bench-cracks bench-lrgnet bench-transfer
+bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer
 
 train: setup
 	$(BIN)/aftershock train mcpnet

@@ -60,6 +60,8 @@ class RegisterConfig(_Section):
     max_points_per_voxel: Count = 20
     # A frame whose ICP moved it further than this from the constant-velocity prediction is flagged.
     max_correction_m: Positive = 1.0
+    # "truth": the log's own true poses replace KISS-ICP (to score labelling without registration errors)
+    poses: Literal["estimated", "truth"] = "estimated"
 
 
 class MapConfig(_Section):
@@ -85,13 +87,41 @@ class ClusterConfig(_Section):
     beta_outdoor: Cosine = 0.92
     # Labellers with embeddings: neighbouring instances merge when their mean embeddings agree this well
     # (cosine similarity); > 1 turns it off.
-    merge_beta: Annotated[float, Field(ge=-1)] = 0.9
+    merge_beta: Annotated[float, Field(ge=-1)] = 0.85
     # Fragments under this many voxels that stopped growing for `absorb_after_scans` scans join the
     # neighbouring instance whose mean embedding agrees best, at `absorb_beta` or more (1 voxel = off).
     absorb_voxels: Count = 30
     absorb_after_scans: NonNegativeCount = 10
     absorb_beta: Cosine = 0.7
     link_reach_voxels: Count = 1  # a new voxel links to voxels up to this many voxels away (1 = the 26 around it)
+    # Geometry (pipeline.cluster.Geometry): a piece of at least plane_min_voxels is planar when its smallest
+    # spread is at most plane_thickness x its middle one and that is at least plane_min_spread_m; a voxel joins
+    # a planar instance only on its plane, and two planar pieces merge only when parallel and coplanar.
+    plane_min_voxels: Count = 15
+    plane_thickness: Positive = 0.2
+    plane_min_spread_m: NonNegative = 0.1
+    plane_angle_deg: Angle = 20.0
+    plane_offset_m: NonNegative = 0.2
+    plane_wide_m: Positive = 0.3  # any thin piece this wide (middle spread, std) is planar whatever its class
+    plane_beta: Annotated[float, Field(ge=-1)] = (
+        0.75  # two planar pieces of one plane merge at this mean-embedding similarity (> 1: off)
+    )
+    # Voxel links checked against local surface normals (pipeline.cluster): "off", "agree" (two flat voxels
+    # with normals apart do not link) or "strict" (besides, a flat voxel does not link to one at an edge).
+    normal_links: Literal["off", "agree", "strict"] = "strict"
+    # Pieces sharing a long boundary (touching voxel pairs >= contact_ratio x the smaller piece's voxels)
+    # merge at this mean-embedding similarity (> 1: off).
+    contact_beta: Annotated[float, Field(ge=-1)] = 2.0
+    contact_ratio: NonNegative = 2.0
+    merge_same_class: bool = False  # instances whose majority classes differ never merge
+    merge_min_contacts: Count = 1  # touching voxel pairs two instances need before they may merge
+    merge_links: NonNegativeCount = (
+        1  # instances joined by this many linked voxel pairs merge (geometry allowing; 0 = never)
+    )
+    # Objects shown to the user (viewer, exports, `eval`) have at least this many voxels; at the end of a
+    # run smaller fragments join the touching instance whose mean embedding agrees at final_beta or more.
+    min_object_voxels: Count = 50
+    final_beta: Annotated[float, Field(ge=-1)] = 0.7  # > 1: off
     normal_angle_deg: Angle = 20.0  # region-growing baseline: neighbouring normals within this angle
     color_distance: NonNegative = 0.12  # region-growing baseline: RGB distance in [0, 1] units
 

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Story
 
 
 class Stage(StrEnum):
@@ -27,6 +27,9 @@ class Sink:
 
     def stage(self, frame: Frame, stage: Stage) -> None:
         """After each stage of each frame."""
+
+    def merges(self, merges: list[InstanceMerge], seq: int) -> None:
+        """Instances joined outside a frame (the end-of-run consolidation); per-frame ones are on `frame.merges`."""
 
     def map_update(self, cloud: LabelledCloud, seq: int) -> None:
         """The accumulated labelled map as of scan `seq` (sent every few scans, and once at the end)."""

@@ -28,10 +28,10 @@ from aftershock.pipeline.cluster import InstanceClusterer, cluster_stage
 from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError, OutputError
 from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
-from aftershock.pipeline.register import MIN_POINTS, Registrar, guess_environment, register_stage
+from aftershock.pipeline.register import MIN_POINTS, guess_environment, make_registrar, register_stage
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
-from aftershock.pipeline.types import Frame, LabelledCloud, RunInfo, RunSummary, Scan
+from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan
 from aftershock.pipeline.voxel_map import VoxelMap
 
 log = logging.getLogger(__name__)
@@ -139,6 +139,36 @@ def instances_per_class(cloud: LabelledCloud) -> dict[str, int]:
 MapHook = Callable[[LabelledCloud, Sequence[Sink]], None]
 
 
+def shown_map(vmap: VoxelMap, clusterer: InstanceClusterer) -> LabelledCloud:
+    """The map as the user sees it: objects under the minimum size read as "no object"."""
+    cloud = vmap.to_cloud()
+    cloud.instance_ids = clusterer.shown_ids(cloud.instance_ids)
+    return cloud
+
+
+def consolidate(
+    vmap: VoxelMap,
+    clusterer: InstanceClusterer,
+    labeller: Labeller,
+    seq: int,
+    summary: RunSummary,
+) -> tuple[list[InstanceMerge], bool]:
+    """End of run: the map-level consolidation of the clusterer, the merged objects' class vote, and fragments
+    under the minimum object size set to "no object" in the map itself. Returns the merges (for the sinks)
+    and whether the map changed."""
+    merges = clusterer.finish(vmap, seq)
+    vote = getattr(labeller, "vote_instances", None)
+    if merges and vote is not None:
+        vote(vmap, np.array([m.into for m in merges], np.int64))
+    ids = vmap.instance_ids
+    summary.fragments = len(np.unique(ids[ids > 0]))
+    summary.final_merges = sum(len(m.merged) for m in merges)
+    shown = clusterer.shown_ids(ids)
+    changed = bool(merges) or not np.array_equal(shown, ids)
+    ids[:] = shown
+    return merges, changed
+
+
 def run_stream(
     scans: Iterable[Scan],
     cfg: Config,
@@ -175,7 +205,7 @@ def _run(
     info.labeller = labeller.name
 
     vmap = VoxelMap.from_config(cfg.map, labeller.embedding_dim)
-    registrar = Registrar.from_config(cfg.registration, environment)
+    registrar = make_registrar(cfg.registration, environment)
     clusterer = InstanceClusterer.from_config(cfg.cluster, labeller.affinity, labeller.embedding_dim)
     all_scans = (s for part in (skipped, [first], it) for s in part)
 
@@ -208,7 +238,7 @@ def _run(
                 true_poses.append(frame.scan.gt_pose)
                 if summary.scans % map_every == 0:
                     t0 = perf_counter()
-                    cloud = vmap.to_cloud()
+                    cloud = shown_map(vmap, clusterer)
                     for sink in sinks:
                         sink.map_update(cloud, frame.seq)
                     frame.timings_ms["sinks"] = frame.timings_ms.get("sinks", 0.0) + (perf_counter() - t0) * 1e3
@@ -223,6 +253,15 @@ def _run(
             output_error = exc
             notice(f"stopped after {summary.scans} scans ({exc}); finishing the other outputs")
         error: BaseException | None = output_error
+        if seqs:
+            merges, changed = consolidate(vmap, clusterer, labeller, seqs[-1], summary)
+            if changed:
+                last_map_seq = None  # the map changed: the sinks get it again below
+            for sink in sinks:
+                try:
+                    sink.merges(merges, seqs[-1])
+                except OutputError as exc:
+                    error = error or exc
         if on_final_map is not None and not summary.interrupted and len(vmap):
             try:
                 on_final_map(vmap.to_cloud(), sinks)

@@ -237,3 +237,5 @@ class RunSummary:
     skipped_messages: int = 0  # undecodable scans or poses (or corrupt chunks) passed over with a warning
     damaged_log: bool = False  # the log ended early: cut off or damaged
     damage: str | None = None  # why it ended early
+    fragments: int = 0  # instances before those under the minimum object size were hidden (`instances` = shown)
+    final_merges: int = 0  # instances merged by the end-of-run consolidation

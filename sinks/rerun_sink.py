@@ -54,7 +54,7 @@ from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.geometry import voxel_downsample
 from aftershock.pipeline.sink import Sink, Stage
-from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Scan, Story
+from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan, Story
 from aftershock.sinks import rerun_blueprint as L
 
 TRAJECTORY_PIECE: Final = 100  # poses per trajectory strip (each scan re-logs its strip); older strips stay
@@ -572,7 +572,10 @@ class RerunSink(Sink):
             ),
             rr.AnyValues(instance_id=labels.instance_ids[one]),
         )
-        for m in frame.merges:
+        self.merges(frame.merges, frame.seq)
+
+    def merges(self, merges: list[InstanceMerge], seq: int) -> None:
+        for m in merges:
             merged = ", ".join(str(i) for i in m.merged)
             self.rec.log(f"{L.LOG}/merges", rr.TextLog(f"scan {m.seq}: instances {merged} merged into {m.into}"))
 

@@ -65,6 +65,7 @@ out.update(
     timings=res.summary.mean_timings_ms,
     scans_per_second=res.summary.scans_per_second,
     scans=res.summary.scans,
+    fragments=res.summary.fragments,
     peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     labeller=res.labeller,
 )

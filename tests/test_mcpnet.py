@@ -217,7 +217,11 @@ def test_a_short_simulated_run_labels_points(sim_scans: list, color: bool) -> No
     assert len(vmap) > 500
     assert (vmap.class_ids != UNLABELLED).all()
     np.testing.assert_allclose(np.linalg.norm(vmap.embeddings, axis=1), 1.0, atol=1e-4)
-    assert (vmap.instance_ids > 0).all()
+    # Every voxel was given an instance; what the user gets are objects of the minimum size, and the small
+    # fragments left over (hidden as 0) are a minor part of the map.
+    ids, counts = np.unique(vmap.instance_ids, return_counts=True)
+    assert (counts[ids > 0] >= Config().cluster.min_object_voxels).all()
+    assert (vmap.instance_ids > 0).mean() > 0.8, (vmap.instance_ids > 0).mean()
     truth = vmap.true_class_ids[vmap.true_class_ids != UNLABELLED]
     majority = np.bincount(truth).max() / len(truth)  # what calling everything a wall would score
     # A building never trained on: with colour better than the majority class, without it far above chance.

@@ -114,7 +114,7 @@ def _hall(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return np.vstack(pts), np.concatenate(cls), np.concatenate(inst)
 
 
-def write_truth_log(path: Path, scans: int = 30, points: int = 12_000, seed: int = 0) -> Path:
+def write_truth_log(path: Path, scans: int = 30, points: int = 12_000, seed: int = 0, with_poses: bool = True) -> Path:
     """A ROS 2 MCAP of a sensor driving down the hall at 1 m height, with class/instance fields and true poses."""
     rng = np.random.default_rng(seed)
     world, cls, inst = _hall(rng)
@@ -137,7 +137,7 @@ def write_truth_log(path: Path, scans: int = 30, points: int = 12_000, seed: int
             }
         )
         poses.append(pose)
-    return write_ros2_mcap(path, clouds, poses=poses)
+    return write_ros2_mcap(path, clouds, poses=poses if with_poses else None)
 
 
 def test_eval_scores_a_log_with_truth(tmp_path: Path, capsys) -> None:
@@ -159,6 +159,69 @@ def test_eval_scores_a_log_with_truth(tmp_path: Path, capsys) -> None:
     assert rep["nmi"] > 0.3
     code, stdout, _ = _run_cli(["eval", str(log), "--labeller", "region-growing", "--quiet"], capsys)
     assert code == 0 and "mean IoU" in stdout and "ATE" in stdout
+
+
+def test_eval_with_true_poses_scores_labelling_alone(tmp_path: Path, capsys) -> None:
+    """`--poses truth` places every scan with the log's own pose (no registration error) and says so."""
+    log = write_truth_log(tmp_path / "hall.mcap")
+    near = ["--set", "label.indoor_range_m=2"]
+    args = ["eval", str(log), "--labeller", "region-growing", *near, "--quiet", "--json"]
+    code, stdout, _ = _run_cli([*args, "--poses", "truth"], capsys)
+    assert code == 0
+    truth = json.loads(stdout)
+    code, stdout, _ = _run_cli(args, capsys)
+    estimated = json.loads(stdout)
+    assert truth["poses"] == "truth" and estimated["poses"] == "estimated"
+    assert set(EVAL_KEYS) <= set(truth) and truth["ate_m"] is None and estimated["ate_m"] < 0.05
+    assert truth["scans"] == 30 and truth["registration_failures"] == 0
+    assert 0.5 < truth["overall_accuracy"] <= 1.0 and truth["per_class_iou"]["floor"] > 0.5
+    # The stream's poses are the log's true poses exactly.
+    from aftershock import sources
+
+    cfg = load_config(None, ["label.labeller=region-growing", "registration.poses=truth", *near[1:]])
+    res = run_stream(sources.open(str(log)), cfg, [], RunInfo(source=str(log), source_kind="mcap"), lambda _t: None)
+    finite = ~np.isnan(res.true_poses).any(axis=(1, 2))
+    assert finite.all() and np.allclose(res.poses, res.true_poses, atol=1e-9)
+    code, stdout, _ = _run_cli(
+        ["eval", str(log), "--labeller", "region-growing", "--quiet", "--poses", "truth"], capsys
+    )
+    assert code == 0 and "true poses were used" in stdout
+
+
+def test_objects_shown_have_the_minimum_size_and_merges_reach_the_recording(tmp_path: Path) -> None:
+    """MCPNet on a short simulated mission: the map the user gets (and that `eval` scores) holds only objects
+    of at least `cluster.min_object_voxels`; the merges, the end-of-run consolidation's included, are in the
+    recording's merge log, and the last map in the recording shows the consolidated objects."""
+    from aftershock import sources
+    from aftershock.pipeline.commands.evaluate import evaluate_map
+
+    uri = "sim://office?seed=5&sensor=vlp16&scans=20"
+    cfg = load_config(None, ["label.labeller=mcpnet"])
+    sink = RerunSink(tmp_path / "run.rrd", False, None, cfg.rerun)
+    res = run_stream(sources.open(uri), cfg, [sink], RunInfo(source=uri, source_kind="sim"), lambda _t: None)
+    ids, counts = np.unique(res.vmap.instance_ids, return_counts=True)
+    shown = ids > 0
+    assert shown.sum() == res.summary.instances >= 3
+    assert counts[shown].min() >= cfg.cluster.min_object_voxels
+    assert res.summary.fragments > res.summary.instances  # small fragments exist and are hidden
+    scores = evaluate_map(res.vmap)
+    assert 0 < scores["predicted_instances"] <= res.summary.instances
+    rec = read_rrd(tmp_path / "run.rrd")
+    merges = rec.texts("log/merges")
+    assert merges and all("merged into" in t for t in merges)
+    assert rec.times("log/merges", "TextLog:text", L.SCAN_TIMELINE).max() == 19
+    last = {e: rec.rows(e, "instance_id") for e in rec.under(L.MAP)}
+    final_ids = set(np.concatenate([np.asarray(r[-1]) for r in last.values() if r]).tolist())
+    assert final_ids <= set(ids.tolist())
+
+
+def test_eval_with_true_poses_refuses_a_log_without_them(tmp_path: Path, capsys) -> None:
+    log = write_truth_log(tmp_path / "hall.mcap", scans=3, with_poses=False)
+    code, stdout, err = _run_cli(["eval", str(log), "--quiet", "--poses", "truth"], capsys)
+    assert code == 2 and stdout == "" and len(err.strip().splitlines()) == 1
+    assert "hall.mcap" in err and "no true poses" in err
+    code, _, err = _run_cli(["eval", str(log), "--quiet", "--poses", "guessed"], capsys)
+    assert code == 2 and "estimated, truth" in err and len(err.strip().splitlines()) == 1
 
 
 def test_eval_on_a_small_simulated_mission(capsys) -> None:

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aftershock.pipeline.classes import UNLABELLED
-from aftershock.pipeline.cluster import InstanceClusterer
+from aftershock.pipeline.classes import UNLABELLED, SemanticClass
+from aftershock.pipeline.cluster import Geometry, InstanceClusterer
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys, unpack_keys
 
 
@@ -188,3 +188,88 @@ def test_a_fragment_that_stops_growing_joins_the_neighbour_it_agrees_with() -> N
     assert [(m.into, m.merged) for m in merges] == [(1, (fragment,))]
     assert vm.instance_ids[close][0] == 1 and vm.instance_ids[far][0] not in (0, 1)
     assert cl.size[1] == 5
+
+
+def _wall_voxels(axis: int, at: float, extent: tuple[float, float], height: float = 2.0) -> np.ndarray:
+    """Centres of 0.1 m voxels of a vertical wall: x = at (axis 0) or y = at (axis 1), along the other axis."""
+    along = np.arange(extent[0], extent[1], 0.1) + 0.05
+    up = np.arange(0.0, height, 0.1) + 0.05
+    u, z = np.meshgrid(along, up, indexing="ij")
+    fixed = np.full(u.size, at + 0.05)
+    xy = (fixed, u.ravel()) if axis == 0 else (u.ravel(), fixed)
+    return np.c_[xy[0], xy[1], z.ravel()]
+
+
+@pytest.mark.parametrize("geometry", [True, False])
+def test_a_wall_does_not_grow_round_a_corner_into_the_next_wall(geometry: bool) -> None:
+    """Every voxel pair agrees (the embeddings cannot tell the walls apart), yet the second wall stays its own
+    object: once the first wall is known to be planar, voxels off its plane do not join it, and the two planar
+    instances never merge (their normals are at 90°). Without the geometric test they become one."""
+    vm = VoxelMap(0.1, embedding_dim=2)
+    same = lambda m, a, b: np.ones(len(a), bool)  # noqa: E731
+    geo = Geometry() if geometry else Geometry(plane_min_voxels=10**9)
+    cl = InstanceClusterer(same, merge_beta=0.9, geometry=geo, min_object_voxels=10, final_beta=0.7)
+    first = _wall_voxels(1, 0.0, (0.0, 3.0))  # y = 0, x from 0 to 3 m
+    rows, _ = vm.insert(first, None, 0)
+    vm.embeddings[rows] = [1.0, 0.0]
+    vm.class_ids[rows] = SemanticClass.WALL
+    cl.add(vm, rows, 0)
+    assert len(set(vm.instance_ids[rows])) == 1
+    second = _wall_voxels(0, 3.0, (0.1, 3.0))  # x = 3, meets the first wall's end
+    rows2, _ = vm.insert(second, None, 1)
+    vm.embeddings[rows2] = [1.0, 0.0]
+    vm.class_ids[rows2] = SemanticClass.WALL
+    cl.add(vm, rows2, 1)
+    cl.finish(vm, 1)
+    a, b = vm.instance_ids[rows], vm.instance_ids[rows2]
+    if not geometry:
+        assert (b == a[0]).all()
+        return
+    # The second wall is one object of its own; only its voxels within plane_offset_m (0.2 m) of the first
+    # wall's plane -- its first two columns, at 0.1 and 0.2 m -- may join the first wall at the corner.
+    values, counts = np.unique(b, return_counts=True)
+    assert len(set(a)) == 1 and values[counts.argmax()] != a[0] and counts.max() >= 0.95 * len(b)
+    assert (b == a[0]).sum() <= 40
+
+
+def test_coplanar_pieces_merge_and_small_fragments_are_hidden() -> None:
+    """Two pieces of one wall that grew apart merge when their mean embeddings agree; at the end of the run a
+    small fragment joins the wall it agrees with, and an isolated one under the minimum size reads as 0."""
+    vm = VoxelMap(0.1, embedding_dim=2)
+    never = lambda m, a, b: np.zeros(len(a), bool)  # noqa: E731 - no voxel links: only instance-level rules
+    cl = InstanceClusterer(never, merge_beta=0.9, min_object_voxels=20, final_beta=0.7)
+    wall = _wall_voxels(1, 0.0, (0.0, 2.0))
+    rows, _ = vm.insert(wall, None, 0)
+    vm.embeddings[rows] = [1.0, 0.0]
+    vm.class_ids[rows] = SemanticClass.WALL
+    # Without links every voxel starts alone; instance merging then joins neighbours that agree.
+    merges = cl.add(vm, rows, 0)
+    assert merges and len(np.unique(vm.instance_ids[rows])) < len(rows)
+    merges = cl.finish(vm, 0)
+    assert len(np.unique(vm.instance_ids[rows])) == 1
+    lone, _ = vm.insert(np.array([[10.05, 10.05, 10.05]]), None, 1)
+    vm.embeddings[lone] = [1.0, 0.0]
+    cl.add(vm, lone, 1)
+    cl.finish(vm, 1)
+    shown = cl.shown_ids(vm.instance_ids)
+    assert shown[lone][0] == 0 and (shown[rows] == vm.instance_ids[rows]).all() and shown[rows][0] > 0
+
+
+@pytest.mark.parametrize("normal_links", ["off", "strict"])
+def test_two_walls_seen_at_once_split_at_the_corner_by_their_normals(normal_links: str) -> None:
+    """Both walls arrive in one scan, so no plane is known yet: only the voxels' own surface normals can
+    keep the corner from joining them (with the check off they are one object)."""
+    vm = VoxelMap(0.1, embedding_dim=2)
+    same = lambda m, a, b: np.ones(len(a), bool)  # noqa: E731
+    cl = InstanceClusterer(same, merge_beta=0.9, normal_links=normal_links, min_object_voxels=10, final_beta=0.7)
+    rows, _ = vm.insert(np.r_[_wall_voxels(1, 0.0, (0.0, 3.0)), _wall_voxels(0, 3.0, (0.1, 3.0))], None, 0)
+    vm.embeddings[rows] = [1.0, 0.0]
+    vm.class_ids[rows] = SemanticClass.WALL
+    cl.add(vm, rows, 0)
+    cl.finish(vm, 0)
+    a, b = vm.instance_ids[rows[:600]], vm.instance_ids[rows[600:]]
+    if normal_links == "off":
+        assert len(set(a) | set(b)) == 1
+    else:
+        values, counts = np.unique(b, return_counts=True)
+        assert len(set(a)) == 1 and values[counts.argmax()] != a[0] and counts.max() >= 0.9 * len(b)

@@ -13,7 +13,7 @@ import json
 import sys
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import typer
@@ -22,6 +22,8 @@ from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.stream import StreamResult, run_stream
 from aftershock.pipeline.types import Scan
 from aftershock.pipeline.voxel_map import VoxelMap
+
+POSES: Final = ("estimated", "truth")
 
 
 def evaluate_map(vmap: VoxelMap) -> dict[str, Any]:
@@ -55,20 +57,25 @@ def evaluate_map(vmap: VoxelMap) -> dict[str, Any]:
     }
 
 
-def require_truth(scans: Iterator[Scan], source: str) -> Iterator[Scan]:
-    """The scans, after checking that the first one carries true labels (so a log without them fails at once)."""
+def require_truth(scans: Iterator[Scan], source: str, poses: bool = False) -> Iterator[Scan]:
+    """The scans, after checking that the first one carries true labels (and, with `poses`, a true pose), so a
+    log without them fails at once."""
     first = next(scans, None)
     if first is None:
         raise InputError("no scans", source)
     if not first.has_ground_truth:
         raise InputError("the log carries no ground truth (class_id / instance_id point fields)", source)
+    if poses and first.gt_pose is None:
+        raise InputError("the log carries no true poses for --poses truth; use --poses estimated", source)
     return itertools.chain([first], scans)
 
 
-def report(result: StreamResult) -> dict[str, Any]:
+def report(result: StreamResult, poses: str = "estimated") -> dict[str, Any]:
+    """The scores as JSON data; `poses` says which poses placed the scans ("estimated" by KISS-ICP or the
+    log's "truth", in which case there is no trajectory error to report)."""
     s = result.summary
     scores = evaluate_map(result.vmap)
-    traj = result.trajectory
+    traj = result.trajectory if poses == "estimated" else None
     return {
         **scores,
         "ate_m": traj.ate_rmse_m if traj else None,
@@ -84,6 +91,11 @@ def report(result: StreamResult) -> dict[str, Any]:
         "labeller": result.labeller,
         "environment": result.environment.value,
         "interrupted": s.interrupted,
+        "poses": poses,
+        # predicted_instances are the objects shown (at least cluster.min_object_voxels voxels); fragments are
+        # all instances before the small ones were hidden, final_merges those the end-of-run consolidation joined
+        "fragments": s.fragments,
+        "final_merges": s.final_merges,
     }
 
 
@@ -100,7 +112,8 @@ def print_report(rep: dict[str, Any]) -> None:
     print(f"instances: NMI {rep['nmi'] * pct:.1f}, AMI {rep['ami'] * pct:.1f}, ARI {rep['ari'] * pct:.1f}")
     print(
         f"  at IoU 0.5: precision {rep['precision']:.3f}, recall {rep['recall']:.3f}, mIoU "
-        f"{rep['instance_mean_iou']:.3f} ({rep['predicted_instances']} predicted, {rep['true_instances']} true)"
+        f"{rep['instance_mean_iou']:.3f} ({rep['predicted_instances']} objects shown of {rep['fragments']} "
+        f"fragments, {rep['true_instances']} true)"
     )
     if rep["ate_m"] is not None:
         print(
@@ -108,6 +121,8 @@ def print_report(rep: dict[str, Any]) -> None:
             f"{rep['rpe_m_per_scan']:.3f} m / {rep['rpe_deg_per_scan']:.2f}° per scan, "
             f"drift {rep['drift_percent']:.2f} %"
         )
+    elif rep.get("poses") == "truth":
+        print("trajectory: the log's true poses were used (labelling scored without registration errors)")
     else:
         print("trajectory: the log has no true poses")
     timing = ", ".join(f"{k} {v:.1f}" for k, v in rep["mean_timings_ms"].items())
@@ -130,14 +145,23 @@ def register(app: typer.Typer) -> None:
         max_scans: int | None = typer.Option(None, "--max-scans", help="Stop after this many scans."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or notices."),
         as_json: bool = typer.Option(False, "--json", help="Print the scores as JSON."),
+        poses: str = typer.Option(
+            "estimated",
+            "--poses",
+            help="estimated: register with KISS-ICP; truth: place scans with the log's true poses, so labelling "
+            "errors can be told apart from registration errors.",
+        ),
     ) -> None:
         """Score the online labelling and registration against the ground truth in a log."""
+        if poses not in POSES:
+            raise InputError(f"unknown --poses {poses!r}; choose one of: {', '.join(POSES)}")
         cfg = build_config(config, overrides, labeller, topic, start, end, every, max_scans)
+        cfg.registration.poses = poses  # type: ignore[assignment]  # checked above
         scans, info = open_scans(source, cfg, quiet)
-        scans = require_truth(scans, source)
+        scans = require_truth(scans, source, poses=poses == "truth")
         notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
         result = run_stream(scans, cfg, [], info, notice)
-        rep = report(result)
+        rep = report(result, poses)
         if as_json:
             print(json.dumps(rep, indent=2))
         else:

@@ -164,6 +164,7 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "wall_time_s": s.wall_time_s,
         "map_voxels": s.map_voxels,
         "instances": s.instances,
+        "fragments": s.fragments,  # instances before those under cluster.min_object_voxels were hidden
         "instances_per_class": s.instances_per_class,
         "mean_timings_ms": s.mean_timings_ms,
         "registration_failures": s.registration_failures,
