@@ -1,10 +1,12 @@
 """Train CrackEmbed on simulated cracked concrete (never on the evaluation masks): `aftershock train crackembed`.
 
-Training elements are the simulator's cracked columns, walls and slabs (`sources.simulator.cracks`, seeds
-below 100; seeds from 100 on are kept for testing on unseen elements), each at a random spacing of 2–8 mm and
-cropped to a 0.6 m window around one of its cracks. The intact concrete (with its stains and pits) is one
-surface, each crack another; a triplet loss pulls points of one surface together and pushes different
-surfaces apart. The simulation's crack marks serve only as surface identities.
+Training elements are the simulator's cracked columns, walls, beams and slabs (`sources.simulator.cracks`: branching,
+tapering cracks with spalled edges on bare or painted concrete with stains, dirt streaks, shade and occlusion;
+seeds below 100; seeds from 100 on are kept for testing on unseen elements), each at a random spacing (1.5–5 mm;
+slabs, evaluated on a 1 cm grid, 4–10 mm) and cropped to a 0.6 m window around one of its cracks. The
+intact concrete (with its stains, streaks and pits) is one surface, each crack another; a triplet loss pulls
+points of one surface together and pushes different surfaces apart. The simulation's crack marks serve only
+as surface identities.
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ SURFACES_PER_BATCH: Final = 16
 POINTS_PER_SURFACE: Final = 16
 MARGIN: Final = 1.0  # on squared distances between unit vectors (0..4), as the study's triplet loss
 NEIGHBOURHOOD_M: Final = 0.01
-KINDS: Final = ("column", "wall", "slab")
+KINDS: Final = ("column", "wall", "slab", "beam")
+SPACING_M: Final = {"column": (0.0015, 0.005), "wall": (0.0015, 0.005), "beam": (0.0015, 0.005), "slab": (0.004, 0.01)}
 WINDOW_M: Final = 0.6  # each training element is cropped to a window this wide around one of its cracks
 HELD_OUT_SEEDS: Final = 100  # element seeds from here on are never trained on: they test unseen elements
 
@@ -38,7 +41,7 @@ def training_element(seed: int, rng: np.random.Generator) -> tuple[np.ndarray, n
     from aftershock.sources.simulator.cracks import cracked_element
 
     kind = KINDS[seed % len(KINDS)]
-    spacing = float(rng.uniform(0.002, 0.008))
+    spacing = float(rng.uniform(*SPACING_M[kind]))
     cloud, mask, _ = cracked_element(kind, seed, spacing)
     pts = cloud.points
     crack_pts = pts[mask] if mask.any() else pts

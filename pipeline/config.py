@@ -180,6 +180,9 @@ class CrackConfig(_Section):
     features: str = "shade+crackembed"  # best balance of real elements and unseen simulated ones (bench_cracks)
     detector: str = "isolation-forest"
     neighbourhood_m: Positive = 0.01
+    shade_cell_m: NonNegative = (
+        0.0  # shade: darkness against the mean of the 3 x 3 x 3 block of these voxels (0 = median)
+    )
     severe_width_m: Positive = 0.0032  # 1/8 inch
     min_crack_points: Count = 20
     seed: Seed = 0
@@ -192,10 +195,21 @@ class CrackConfig(_Section):
     support_spacings: Positive = 3.0  # a crack point needs min_support of the points within this many spacings ...
     min_support: Fraction = 0.5  # ... to be crack points too (0 = no clean-up before linking)
     min_elongation: NonNegative = 3.0  # a reported crack is at least this many times longer than its opening is wide
-    # "valley": the anomaly detectors' threshold is raised to the valley before a separate mode of high scores
-    # (one at least valley_rise times denser than the valley) when the scores have one; "detector": never
-    threshold: Literal["valley", "detector"] = "valley"
+    # How the anomaly detectors' scores become crack candidates (bench_cracks chooses, leave-one-object-out):
+    # "null": above the scores' median + null_sigmas robust sigmas (sound concrete rarely scores more; calibrated
+    # on simulated intact elements); "mixture": where a two-component mixture's upper component (a crack
+    # population of at least mixture_min_weight, mixture_separation sigmas above the rest) takes over, else
+    # "null"; "valley": the valley before a separate mode of high scores (never below "null" when null_sigmas > 0);
+    # "detector": the detector's own
+    threshold: Literal["null", "mixture", "valley", "detector"] = "valley"
+    null_sigmas: NonNegative = 0.0
+    mixture_min_weight: Fraction = 0.03
+    mixture_separation: NonNegative = 3.0
     valley_rise: Positive = 2.0
+    edge_spacings: NonNegative = (
+        0.0  # points on the scan's edge (cells this many spacings; 0 = off) score at most the median
+    )
+    cracks_only: bool = True  # crack points are those of reported cracks (not round blobs, not tiny groups)
     grow_m: NonNegative = (
         0.03  # after the support rule (0 = off), points this close to a crack whose smoothed score ...
     )

@@ -232,3 +232,55 @@ def robust_sigma(x: np.ndarray) -> float:
     """1.4826 × the median absolute deviation: the spread of the bulk of the scores (sound concrete)."""
     x = np.asarray(x, np.float64)
     return float(1.4826 * np.median(np.abs(x - np.median(x))))
+
+
+def null_threshold(score: np.ndarray, sigmas: float) -> float:
+    """The score a point of sound concrete rarely reaches: the scores' median plus `sigmas` robust standard
+    deviations. The bulk of an element's points is sound surface whether it is cracked or not, so the median
+    and the spread describe the sound surface; `sigmas` is calibrated on simulated intact elements so that
+    about as few of their points pass as the target allows (`make bench-cracks`)."""
+    s = np.asarray(score, np.float64)
+    return float(np.median(s) + sigmas * robust_sigma(s))
+
+
+def mixture_threshold(score: np.ndarray, null: float, min_weight: float, min_separation: float, seed: int = 0) -> float:
+    """A two-component Gaussian mixture of the scores: when its upper component holds at least `min_weight`
+    of them and lies at least `min_separation` standard deviations of the lower one above it (a population of
+    crack points, not a tail of sound ones), the threshold is where a score becomes more likely the upper
+    component's; otherwise there is no crack population and the threshold is `null`. Never below `null`."""
+    from sklearn.mixture import GaussianMixture
+
+    s = np.asarray(score, np.float64)
+    rng = np.random.default_rng(seed)
+    sample = s if len(s) <= 20000 else s[rng.choice(len(s), 20000, replace=False)]
+    if len(sample) < 20 or not np.ptp(sample) > 0:
+        return float(null)
+    gmm = GaussianMixture(2, random_state=seed, reg_covar=1e-6).fit(sample.reshape(-1, 1))
+    mean, sd, weight = gmm.means_[:, 0], np.sqrt(gmm.covariances_.reshape(-1)), gmm.weights_
+    lo, hi = int(np.argmin(mean)), int(np.argmax(mean))
+    if weight[hi] < min_weight or (mean[hi] - mean[lo]) / sd[lo] < min_separation:
+        return float(null)
+    grid = np.linspace(mean[lo], mean[hi], 512).reshape(-1, 1)
+    upper = gmm.predict_proba(grid)[:, hi] >= 0.5
+    cross = float(grid[np.argmax(upper), 0]) if upper.any() else float(mean[hi])
+    return max(cross, float(null))
+
+
+def edge_points(points: np.ndarray, cell_m: float, offset: float = 0.4) -> np.ndarray:
+    """Points on the edge of the scanned surface (the border of an element cut out of a scan, a hole where
+    something stood in front): the centroid of the 3×3×3 block of `cell_m` voxels around them lies more than
+    `offset` cells away from its centre within the surface (the offset along the surface normal, as at a column's
+    corner, does not count). Their neighbourhood is one-sided, so their features look unusual though the
+    surface is sound."""
+    pts = np.asarray(points, np.float64)
+    if cell_m <= 0 or len(pts) < 4:
+        return np.zeros(len(pts), bool)
+    from aftershock.pipeline.geometry import block_pca
+
+    q = pts - pts.mean(axis=0)
+    sums = block_sums(q, np.c_[q, np.ones(len(q))], cell_m)
+    centre = (np.floor(q / cell_m) + 0.5) * cell_m  # the block is centred on the point's voxel
+    shift = sums[:, :3] / sums[:, 3:] - centre
+    normals, _, _ = block_pca(pts, cell_m)
+    along = shift - (shift * normals).sum(axis=1, keepdims=True) * normals
+    return np.linalg.norm(along, axis=1) > offset * cell_m

@@ -358,12 +358,16 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     """Stories (lowest first) of a structure: each slab plane with its drift (mm) and tilt (°) against the
     lowest plane. Fewer than two slabs gives the slabs found with zero drift, and a note."""
     gravity = Gravity(cfg.gravity)
-    pts = np.asarray(points, np.float64)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
     notes: list[str] = []
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.all():  # a NaN would end every plane fit in a LinAlgError
+        notes.append(f"{int((~finite).sum())} point(s) with non-finite coordinates left out")
+        pts = pts[finite]
     rot = np.eye(3)
     rng = np.random.default_rng(cfg.seed)
     if len(pts) < _MIN_SLAB_POINTS:
-        return DriftResult([], gravity.value, notes=["too few points to find story slabs"])
+        return DriftResult([], gravity.value, notes=[*notes, "too few points to find story slabs"])
     if gravity is Gravity.GROUND_PLANE:
         bands = _bands(pts, cfg)
         if bands:

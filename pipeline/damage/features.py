@@ -15,7 +15,7 @@ import numpy as np
 
 from aftershock.pipeline.config import CrackConfig
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.geometry import block_pca
+from aftershock.pipeline.geometry import block_pca, block_sums
 from aftershock.pipeline.types import LabelledCloud
 
 _MAD_TO_SIGMA: Final = 1.4826
@@ -87,14 +87,24 @@ def _crackembed(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
     return embed(cloud, cfg)
 
 
+def local_contrast(points: np.ndarray, values: np.ndarray, cell_m: float) -> np.ndarray:
+    """`values` (N, K) minus their mean over the 3×3×3 block of `cell_m` voxels around each point (0 = the
+    element's median instead): a high-pass that leaves out shade varying over more than a few cells."""
+    v = np.asarray(values, np.float64).reshape(len(points), -1)
+    if cell_m <= 0:
+        return v - np.median(v, axis=0)
+    sums = block_sums(points, np.c_[v, np.ones(len(v))], cell_m)
+    return v - sums[:, :-1] / sums[:, -1:]
+
+
 def _shade(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
-    """One-sided darkness against the element's own typical surface: how far the grey level and the darkest
-    channel fall below their median, in robust standard deviations (brighter than usual counts as 0).
-    Cracks and spalls are shadowed cavities and exposed aggregate; a bright stain is not a crack."""
+    """One-sided darkness against the surface around each point (`cfg.shade_cell_m`; 0 = the element's own
+    typical surface): how far the grey level and the darkest channel fall below the local mean, in robust
+    standard deviations (brighter than usual counts as 0). Cracks and spalls are shadowed cavities and exposed
+    aggregate; a bright stain is not a crack, and neither is the shade that falls across a whole element."""
     rgb = unit_colors(cloud)
-    grey = robust_z(rgb.mean(axis=1))
-    darkest = robust_z(rgb.min(axis=1))
-    return np.clip(-np.stack([grey, darkest], axis=1), 0.0, None)
+    contrast = local_contrast(cloud.points, np.stack([rgb.mean(axis=1), rgb.min(axis=1)], axis=1), cfg.shade_cell_m)
+    return np.clip(-robust_z(contrast), 0.0, None)
 
 
 def _shade_crackembed(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:

@@ -17,7 +17,10 @@ from aftershock.pipeline.damage.detectors import (
     Detection,
     Detector,
     detect,
+    edge_points,
     grow,
+    mixture_threshold,
+    null_threshold,
     parse_detector,
     robust_sigma,
     smooth,
@@ -39,6 +42,7 @@ ERROR_DEFINITION: Final = (
     "against all of it, by minimum-area rectangle (the study's protocol); widths are openings"
 )
 _SLAB_COS: Final = np.cos(np.deg2rad(30.0))
+MIN_POINTS: Final = 100  # fewer points cannot hold a crack of `min_crack_points` and the surface around it
 
 
 class TooSparseError(InputError):
@@ -76,6 +80,7 @@ class CrackResult:
     scores: Scores | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
     input_points: int = 0
+    notes: list[str] = field(default_factory=list)  # what was left out of the input, and why
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -121,6 +126,7 @@ class CrackResult:
             "features": self.features,
             "detector": self.detector,
             "timings_s": self.timings_s,
+            "notes": self.notes,
         }
         return out
 
@@ -147,6 +153,30 @@ def crack_json(c: Crack) -> dict[str, Any]:
         "severe": c.severe,
         "width_resolved": c.width_resolved,
     }
+
+
+def edge_suppressed(points: np.ndarray, score: np.ndarray, cell_m: float) -> np.ndarray:
+    """Scores with those of the scan's edge points (`edge_points`) lowered to the median: a one-sided
+    neighbourhood is no evidence of a crack."""
+    if cell_m <= 0:
+        return score
+    edge = edge_points(points, cell_m)
+    out = np.asarray(score, np.float64).copy()
+    out[edge] = np.minimum(out[edge], np.median(out))
+    return out
+
+
+def decision_threshold(detection: Detection, cfg: CrackConfig) -> float:
+    """The crack threshold of an anomaly detector's scores under the configured rule (`CrackConfig.threshold`)."""
+    s = detection.score
+    null = null_threshold(s, cfg.null_sigmas)
+    if cfg.threshold == "null":
+        return null
+    if cfg.threshold == "mixture":
+        return mixture_threshold(s, null, cfg.mixture_min_weight, cfg.mixture_separation, cfg.seed)
+    if cfg.threshold == "valley":
+        return valley_threshold(s, detection.threshold, cfg.valley_rise)
+    return detection.threshold
 
 
 def find_cracks(
@@ -176,8 +206,16 @@ def find_cracks(
         if truth.ndim != 1 or len(truth) != n_in:
             raise InputError(f"the truth mask has {truth.shape} entries for a cloud of {n_in} points")
         truth = truth.astype(bool)
-    if n_in < 10:
-        raise InputError(f"{n_in} points are too few to look for cracks")
+    notes: list[str] = []
+    finite = np.isfinite(cloud.points).all(axis=1)
+    if not finite.all():  # NaN coordinates (a scanner's no-return) would break every neighbourhood and fit
+        notes.append(f"{int((~finite).sum())} point(s) with non-finite coordinates left out")
+        cloud = cloud.select(np.flatnonzero(finite))
+        truth = truth[finite] if truth is not None else None
+    if len(cloud) < MIN_POINTS:
+        raise TooSparseError(
+            f"{len(cloud)} point(s) with finite coordinates are too few to look for cracks (at least {MIN_POINTS})"
+        )
     feats = parse_features(features or cfg.features) if not isinstance(features, FeatureSet) else features
     det = parse_detector(detector or cfg.detector) if not isinstance(detector, Detector) else detector
     timings: dict[str, float] = {}
@@ -200,8 +238,9 @@ def find_cracks(
     detection = detect(
         x, det, seed=cfg.seed, fit_points=cfg.fit_points, clusters=CLUSTERS_PER_FEATURE.get(feats.value, 2)
     )
-    if cfg.threshold == "valley" and det in ANOMALY_DETECTORS:
-        detection = Detection(detection.score, valley_threshold(detection.score, detection.threshold, cfg.valley_rise))
+    if det in ANOMALY_DETECTORS:
+        detection = Detection(edge_suppressed(part.points, detection.score, cfg.edge_cell_m), detection.threshold)
+        detection = Detection(detection.score, decision_threshold(detection, cfg))
     sigma = robust_sigma(detection.score)
     detection = smooth(part.points, detection, cfg.smooth_cell_m, cfg.smooth_keep_raw)
     support_m = cfg.support_spacings * spacing
@@ -213,6 +252,8 @@ def find_cracks(
     cracks, ids = measure_cracks(
         part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing, cfg.min_elongation
     )
+    if cfg.cracks_only:
+        mask = ids > 0
     scores = None
     if carried is not None:
         scores = score(part.points, mask, carried, link, cfg.min_crack_points, spacing, ids, cracks, cfg.min_elongation)
@@ -230,6 +271,7 @@ def find_cracks(
         scores=scores,
         timings_s={k: round(v, 3) for k, v in timings.items()},
         input_points=n_in,
+        notes=notes,
     )
 
 
