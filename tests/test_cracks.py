@@ -339,3 +339,65 @@ def test_extract_elements_by_size_and_box() -> None:
     assert len(picked) > 0.8 * 20000
     boxed = extract_elements(cloud, cfg, box=np.array([[0.25, -0.25, 0.01], [0.75, 0.25, 3.0]]))
     assert len(boxed) == 1 and np.all(boxed[0] >= 60000)
+
+
+def test_thresholds_know_when_there_is_no_crack() -> None:
+    """One population (sound concrete only): the mixture finds no second one and the threshold is the null
+    rule's; a separate population of 6 % crack scores: the threshold falls between the two."""
+    from aftershock.pipeline.damage.detectors import mixture_threshold, null_threshold
+
+    rng = np.random.default_rng(0)
+    sound = rng.normal(0.0, 1.0, 20000)
+    null = null_threshold(sound, 3.0)
+    assert null == pytest.approx(3.0, abs=0.1)
+    assert (sound > null).mean() < 0.003
+    assert mixture_threshold(sound, null, 0.03, 3.0) == null
+    cracked = np.r_[sound, rng.normal(8.0, 1.0, 1300)]
+    t = mixture_threshold(cracked, null_threshold(cracked, 2.0), 0.03, 3.0)
+    assert 3.0 < t < 6.0
+    assert (cracked[20000:] > t).mean() > 0.97 and (sound > t).mean() < 0.003
+
+
+def test_edge_points_are_the_border_of_the_scan() -> None:
+    from aftershock.pipeline.damage.detectors import edge_points
+
+    u, v = np.meshgrid(np.arange(0, 1, 0.003), np.arange(0, 1, 0.003))
+    pts = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    edge = edge_points(pts, 0.01)
+    inner = np.abs(pts[:, :2] - 0.5).max(axis=1) < 0.48
+    assert not edge[inner].any() and edge[~inner].mean() > 0.5
+
+
+def _write_ply(path: Path, points: np.ndarray) -> Path:
+    header = f"ply\nformat ascii 1.0\nelement vertex {len(points)}\n"
+    header += "property float x\nproperty float y\nproperty float z\nend_header\n"
+    path.write_text(header + "".join(f"{x} {y} {z}\n" for x, y, z in points))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("points", "problem"),
+    [
+        (np.zeros((0, 3)), "too few to look for cracks"),
+        (np.zeros((1, 3)), "too few to look for cracks"),
+        (np.full((500, 3), np.nan), "too few to look for cracks"),
+    ],
+)
+def test_bad_clouds_are_one_line_and_exit_2(
+    points: np.ndarray, problem: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = _write_ply(tmp_path / "bad.ply", points)
+    assert main(["cracks", str(path), "--features", "curvature"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1
+    assert "bad.ply" in err and problem in err
+
+
+def test_nan_points_are_left_out_with_a_note() -> None:
+    """NaN coordinates (a scanner's no-return) are dropped before any neighbourhood or fit, and said so."""
+    pts, mask = _plane_with_cracks(0.004)
+    pts = pts.copy()
+    pts[::50] = np.nan
+    result = find_cracks(LabelledCloud(pts), CrackConfig(), mask, features="curvature", resolution_m=0.004)
+    assert result.notes and "non-finite" in result.notes[0]
+    assert np.isfinite(result.cloud.points).all() and result.scores is not None
