@@ -299,7 +299,7 @@ def test_static_scan_is_labelled_and_on_the_surfaces(scene):
             assert on.sum() > 1000
 
 
-@pytest.mark.parametrize("kind", ["column", "wall", "slab"])
+@pytest.mark.parametrize("kind", ["column", "wall", "slab", "beam"])
 def test_cracked_element(kind):
     spacing = 0.01 if kind == "slab" else 0.004
     cloud, mask, cracks = cracked_element(kind, 4, spacing)
@@ -368,3 +368,26 @@ def test_sample_recording_is_a_small_labelled_mission():
     scans = list(sources.open(path))
     assert len(scans) >= 20
     assert all(s.has_ground_truth and s.gt_pose is not None and s.times is not None for s in scans)
+
+
+def test_cracked_element_variety_and_intact():
+    """Branches start on their parent crack; openings vary along a crack; the same element without cracks has
+    no crack point."""
+    from aftershock.sources.simulator.damage import distance_to_polylines
+
+    branched = 0
+    for seed in range(6):
+        cloud, mask, cracks = cracked_element("wall", seed, 0.006)
+        for i, c in enumerate(cracks):
+            others = [o for j, o in enumerate(cracks) if j != i]
+            if others and len(c.polyline) == 8:  # a branch: its first point lies on another crack's opening
+                a = np.concatenate([o.polyline[:-1] for o in others])
+                b = np.concatenate([o.polyline[1:] for o in others])
+                w = np.concatenate([np.c_[o.widths[:-1], o.widths[1:]] for o in others])
+                d, _ = distance_to_polylines(c.polyline[:1], a, b, w)
+                branched += int(d[0] <= 1e-9)
+        # tapering to the ends, varying between: the widest point well above the typical opening
+        assert np.median([c.widths.max() / np.median(c.widths) for c in cracks]) > 1.3
+    assert branched >= 1
+    cloud, mask, cracks = cracked_element("column", 3, 0.006, intact=True)
+    assert len(cloud) > 1000 and not mask.any() and cracks == []
