@@ -215,22 +215,21 @@ def test_unseen_simulated_elements() -> None:
 # Candidate settings for the default: every combination of the threshold rule, the local shade reference, the
 # scan-edge suppression and which points count as crack points. Chosen leave-one-object-out (below).
 RULES: Final = {
-    "valley": {"threshold": "valley"},
+    "valley": {"threshold": "valley", "null_sigmas": 0.0},
+    "valley, null 1": {"threshold": "valley", "null_sigmas": 1.0},
+    "valley, null 1.5": {"threshold": "valley", "null_sigmas": 1.5},
     "null 2": {"threshold": "null", "null_sigmas": 2.0},
     "null 3": {"threshold": "null", "null_sigmas": 3.0},
-    "null 4": {"threshold": "null", "null_sigmas": 4.0},
-    "mixture": {"threshold": "mixture", "null_sigmas": 2.0, "mixture_separation": 3.0},
+    "mixture": {"threshold": "mixture", "null_sigmas": 1.5, "mixture_separation": 2.0},
 }
 SETTINGS: Final = {
-    f"{rule}, shade {shade * 100:g} cm, edge {edge * 1000:g} mm, {'cracks' if only else 'all'}": {
+    f"{rule}, edge {edge:g} spacings, {'crack points' if only else 'all points'}": {
         **over,
-        "shade_cell_m": shade,
-        "edge_cell_m": edge,
+        "edge_spacings": edge,
         "cracks_only": only,
     }
     for rule, over in RULES.items()
-    for shade in (0.0, 0.05)
-    for edge in (0.0, 0.01)
+    for edge in (0.0, 3.0)
     for only in (False, True)
 }
 SIM_KINDS: Final = ("column", "wall", "slab", "beam")

@@ -175,7 +175,8 @@ def decision_threshold(detection: Detection, cfg: CrackConfig) -> float:
     if cfg.threshold == "mixture":
         return mixture_threshold(s, null, cfg.mixture_min_weight, cfg.mixture_separation, cfg.seed)
     if cfg.threshold == "valley":
-        return valley_threshold(s, detection.threshold, cfg.valley_rise)
+        valley = valley_threshold(s, detection.threshold, cfg.valley_rise)
+        return max(valley, null) if cfg.null_sigmas > 0 else valley
     return detection.threshold
 
 
@@ -193,13 +194,16 @@ def find_cracks(
 
     The cloud is first reduced to one point per `resolution_m` voxel (default: 1 mm for columns and walls,
     1 cm for slabs, as the study evaluated); a truth mask is carried along by majority. Precision and recall
-    are then counted over the points of that evaluated cloud. Detection: features → detector, whose
-    threshold rises to the valley before a separate mode of high scores when there is one (`cfg.threshold`)
-    → scores smoothed over space → support clean-up (drops the smoothing's rim, and the thin ends of cracks
-    with it) → growth: points within `cfg.grow_m` of a crack whose smoothed score is nearly above the
-    threshold join it. Each crack's opening is measured on all of its points, as each true crack's is.
-    A cloud whose spacing is coarser than `cfg.max_spacing_m` raises `TooSparseError` (unless `check_spacing`
-    is off, for the spacing study)."""
+    are then counted over the points of that evaluated cloud. Detection: features → detector → scan-edge points
+    lowered to the median score (`cfg.edge_spacings`) → threshold by the configured rule (`cfg.threshold`:
+    a calibrated null rule that knows an element without cracks, a two-component mixture, or the valley before
+    a separate mode of high scores) → scores smoothed over space → support clean-up (drops the smoothing's rim,
+    and the thin ends of cracks with it) → growth: points within `cfg.grow_m` of a crack whose smoothed score is
+    nearly above the threshold join it → cracks (connected, elongated groups); with `cfg.cracks_only` the crack
+    points are those of reported cracks. Each crack's opening is measured on all of its points, as each true
+    crack's is. Points with non-finite coordinates are left out (`notes` says how many). Fewer than
+    `MIN_POINTS` points, or a cloud whose spacing is coarser than `cfg.max_spacing_m`, raise `TooSparseError`
+    (the latter unless `check_spacing` is off, for the spacing study)."""
     n_in = len(cloud)
     if truth is not None:
         truth = np.asarray(truth)
@@ -239,7 +243,8 @@ def find_cracks(
         x, det, seed=cfg.seed, fit_points=cfg.fit_points, clusters=CLUSTERS_PER_FEATURE.get(feats.value, 2)
     )
     if det in ANOMALY_DETECTORS:
-        detection = Detection(edge_suppressed(part.points, detection.score, cfg.edge_cell_m), detection.threshold)
+        edge_cell = cfg.edge_spacings * spacing
+        detection = Detection(edge_suppressed(part.points, detection.score, edge_cell), detection.threshold)
         detection = Detection(detection.score, decision_threshold(detection, cfg))
     sigma = robust_sigma(detection.score)
     detection = smooth(part.points, detection, cfg.smooth_cell_m, cfg.smooth_keep_raw)
