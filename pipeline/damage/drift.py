@@ -190,15 +190,16 @@ def story_fraction(pts: np.ndarray, floor: np.ndarray, ceiling: np.ndarray) -> n
     return (pts[:, 2] - zf) / np.maximum(zc - zf, 1e-6)
 
 
-def _line(s: np.ndarray, offset: np.ndarray) -> np.ndarray | None:
-    """Straight line (slope, intercept) of offset against s, refitted twice without points more than three
-    deviations (at least 2 mm) off it: door leaves and frames flush with a wall do not lean with it."""
+def _line(s: np.ndarray, offset: np.ndarray, degree: int = 1) -> np.ndarray | None:
+    """Straight line (slope, intercept; or a polynomial of `degree`) of offset against s, refitted twice without
+    points more than three deviations (at least 2 mm) off it: door leaves and frames flush with a wall do not
+    lean with it."""
     keep = np.ones(len(s), bool)
     line = None
     for _ in range(3):
         if keep.sum() < _MIN_END_POINTS or np.ptp(s[keep]) < 0.03:
             return None
-        line = np.polyfit(s[keep], offset[keep], 1)
+        line = np.polyfit(s[keep], offset[keep], degree)
         res = np.abs(np.polyval(line, s) - offset)
         keep = res < max(3.0 * 1.4826 * np.median(res[keep]), 0.002)
     return line
@@ -238,12 +239,15 @@ def story_walls(
         if abs(plane[2]) > 0.1 or lo > cfg.wall_s_min + 0.1 or hi < cfg.wall_s_max - 0.08:
             continue
         normal = plane[:2] / np.linalg.norm(plane[:2])
-        whole = _line(on_s, on[:, :2] @ normal)
+        # A wall between two slabs that turned differently bows as a parabola in s (it blends two rigid
+        # motions): its head can lie a centimetre or more off the line of its middle, so the wall is followed
+        # by a parabola, and its points near the slabs are looked for within a wider band than the plane's.
+        whole = _line(on_s, on[:, :2] @ normal, degree=2)
         if whole is None:
             continue
         along = np.array([-normal[1], normal[0]])
         u = on[:, :2] @ along
-        box = (np.abs(pts @ plane[:3] + plane[3]) < 1.5 * cfg.wall_threshold_m) & (
+        box = (np.abs(pts @ plane[:3] + plane[3]) < 3.0 * cfg.wall_threshold_m) & (
             (pts[:, :2] @ along > u.min()) & (pts[:, :2] @ along < u.max())
         )
         near, near_s = pts[box], s[box]

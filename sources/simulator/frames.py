@@ -59,9 +59,9 @@ def _box_sides(rng: np.random.Generator, lo: np.ndarray, hi: np.ndarray, spacing
     )
 
 
-def drift_frame(layout: str, seed: int, spacing_m: float = 0.05) -> Frame:
+def drift_frame(layout: str, seed: int, spacing_m: float = 0.05, *, scanned: bool = True) -> Frame:
     """One frame of `layout` drawn from `seed`: 2-4 stories, a 10-22 m by 8-16 m footprint, inter-story drift
-    up to 1 % of the story height and slab tilts up to 0.5°."""
+    up to 1 % of the story height and slab tilts up to 0.5°; `scanned` off: no range noise, no occluders."""
     if layout not in LAYOUTS:
         raise InputError(f"unknown frame layout {layout!r} (known: {', '.join(LAYOUTS)})")
     rng = np.random.default_rng([int(seed), sum(map(ord, layout)), 23])
@@ -166,7 +166,7 @@ def drift_frame(layout: str, seed: int, spacing_m: float = 0.05) -> Frame:
 
     # range noise along the line of sight from a station in the middle of each story, and occluders that hide
     # what is behind them from it
-    noise = float(rng.uniform(0.002, 0.005))
+    noise = float(rng.uniform(0.002, 0.005)) if scanned else 0.0
     story_of = np.clip(np.searchsorted(np.asarray(floor_z), moved[:, 2] - 0.05, side="right") - 1, 0, stories - 1)
     stations = np.c_[
         np.full(stories, width / 2) + rng.normal(0, 1, stories),
@@ -178,7 +178,7 @@ def drift_frame(layout: str, seed: int, spacing_m: float = 0.05) -> Frame:
     moved = moved + ray / np.maximum(dist, 1e-9) * rng.normal(0, noise, (len(moved), 1))
     hidden = np.zeros(len(moved), bool)
     for s in range(stories):
-        for _ in range(int(rng.integers(2, 7))):  # occluders on this story's floor
+        for _ in range(int(rng.integers(2, 7)) if scanned else 0):  # occluders on this story's floor
             c = np.array([rng.uniform(1, width - 1), rng.uniform(1, depth - 1)])
             r, top = rng.uniform(0.3, 0.9), floor_z[s] + rng.uniform(0.6, 2.0)
             st = stations[s]
