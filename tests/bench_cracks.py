@@ -28,7 +28,7 @@ from aftershock.pipeline.damage.report import CrackResult, find_cracks
 from aftershock.pipeline.types import LabelledCloud
 from aftershock.sources.simulator.damage import CrackTruth
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
 
 OBJECTS: Final = ("column1", "column2", "slab2")
 DOCS: Final = Path(__file__).resolve().parents[1] / "docs"
