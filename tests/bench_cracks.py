@@ -222,10 +222,11 @@ RULES: Final = {
     "null 3": {"threshold": "null", "null_sigmas": 3.0},
     "mixture": {"threshold": "mixture", "null_sigmas": 1.5, "mixture_separation": 2.0},
 }
-# CrackEmbed retrained on the richer simulated elements (shipped) or the previous weights (simpler elements)
+# CrackEmbed as shipped (trained on the simpler simulated elements) or retrained on the richer ones
+# (`aftershock train crackembed --seed 0 --out models/weights/crackembed_retrained.pt`)
 WEIGHTS: Final = {
-    "retrained": None,
-    "previous": str(Path(__file__).resolve().parents[1] / "models/weights/crackembed_v1.pt"),
+    "shipped": None,
+    "retrained": str(Path(__file__).resolve().parents[1] / "models/weights/crackembed_retrained.pt"),
 }
 SETTINGS: Final = {
     f"{rule}, edge {edge:g} spacings, {name} CrackEmbed": {
