@@ -100,8 +100,8 @@ def register(app: typer.Typer) -> None:
             f"(grid {result.resolution_m * 1000:g} mm, spacing {result.spacing_m * 1000:.1f} mm, "
             f"{result.features} + {result.detector})"
         )
-        for note in result.notes:
-            print(f"note: {note}")
+        for remark in result.notes:
+            print(f"note: {remark}")
         for c in result.cracks:
             x, y, z = c.center
             flag = " SEVERE" if c.severe else ""
