@@ -381,7 +381,7 @@ def _write_ply(path: Path, points: np.ndarray) -> Path:
     [
         (np.zeros((0, 3)), "too few to look for cracks"),
         (np.zeros((1, 3)), "too few to look for cracks"),
-        (np.full((500, 3), np.nan), "too few to look for cracks"),
+        (np.full((500, 3), np.nan), "finite coordinates"),
     ],
 )
 def test_bad_clouds_are_one_line_and_exit_2(
