@@ -27,6 +27,7 @@ COMMAND_MODULES: Final[tuple[str, ...]] = (
     "drift",
     "refine",
     "view",
+    "batch",
 )
 
 app = typer.Typer(

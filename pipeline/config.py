@@ -62,6 +62,7 @@ class RegisterConfig(_Section):
     max_correction_m: Positive = 1.0
     # "truth": the log's own true poses replace KISS-ICP (to score labelling without registration errors)
     poses: Literal["estimated", "truth"] = "estimated"
+    threads: Annotated[int, Field(ge=0)] = 0  # KISS-ICP's threads; 0 = every core (`batch` gives each mission one)
 
 
 class MapConfig(_Section):

@@ -184,6 +184,7 @@ class Registrar:
         kiss_cfg.data.deskew = False  # done here, for every point (see the module docstring)
         kiss_cfg.mapping.voxel_size = self.settings.voxel_size_m
         kiss_cfg.mapping.max_points_per_voxel = cfg.max_points_per_voxel
+        kiss_cfg.registration.max_num_threads = cfg.threads
         self.kiss = KissICP(kiss_cfg)
         self.frames = 0
         self._last_stamp_ns: int | None = None

@@ -155,6 +155,48 @@ def make_sinks(
     return sinks
 
 
+@dataclass(frozen=True)
+class Outputs:
+    """Where `run` sends its results (the `--save/--spawn/--connect/--mcap-out/--export` options)."""
+
+    save: Path | None = None
+    spawn: bool = False
+    connect: str | None = None
+    mcap_out: Path | None = None
+    export: Path | None = None
+    force: bool = False
+
+    def paths(self) -> dict[str, str]:
+        pairs = (("rerun", self.save), ("mcap", self.mcap_out), ("export", self.export))
+        return {k: str(v) for k, v in pairs if v is not None}
+
+
+def run_source(
+    source: str,
+    cfg: Config,
+    outputs: Outputs,
+    refine: bool = False,
+    damage: bool = False,
+    region: np.ndarray | None = None,
+    quiet: bool = False,
+    notice: Callable[[str], None] | None = None,
+    extra_sinks: Sequence[Sink] = (),
+) -> tuple[StreamResult, dict[str, Any], RunInfo]:
+    """One mission, as `aftershock run` does it: open the source, make the sinks, run the stream and the
+    on-demand analyses. Returns the stream's result, the analyses' results (`refine`, `damage`) and the
+    run's `RunInfo` (whose `report` lists what the reader skipped).
+    `batch` calls this once per mission inside a Ray task (with `extra_sinks` reporting progress)."""
+    notice = notice or (lambda t: print(f"aftershock: {t}", file=sys.stderr))
+    scans, info = open_scans(source, cfg, quiet)
+    on_demand = OnDemand(cfg, refine, damage, region, notice) if refine or damage else None
+    o = outputs
+    sinks = make_sinks(
+        cfg, o.save, o.spawn, o.connect, o.mcap_out, o.export, o.force, refine, damage, input_files(source)
+    )
+    result = run_stream(scans, cfg, [*sinks, *extra_sinks], info, notice, on_demand)
+    return result, on_demand.results if on_demand is not None else {}, info
+
+
 def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceReport | None = None) -> dict[str, Any]:
     s = result.summary
     out: dict[str, Any] = {
@@ -342,13 +384,10 @@ def register(app: typer.Typer) -> None:
         cfg = build_config(config, sets, labeller, topic, start, end, every, max_scans)
         box = parse_region(region)
         src = resolve_source(source)
-        scans, info = open_scans(src, cfg, quiet)
         notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
-        on_demand = OnDemand(cfg, refine, damage, box, notice) if refine or damage else None
-        sinks = make_sinks(cfg, save, spawn, connect, mcap_out, export, force, refine, damage, input_files(src))
-        outputs = {k: str(v) for k, v in (("rerun", save), ("mcap", mcap_out), ("export", export)) if v is not None}
-        result = run_stream(scans, cfg, sinks, info, notice, on_demand)
-        extra = on_demand.results if on_demand is not None else {}
+        asked = Outputs(save, spawn, connect, mcap_out, export, force)
+        result, extra, info = run_source(src, cfg, asked, refine, damage, box, quiet, notice)
+        outputs = asked.paths()
         if as_json:
             print(json.dumps(result_dict(result, outputs, info.report) | extra, indent=2, default=_jsonable))
         else:
