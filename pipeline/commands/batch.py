@@ -59,7 +59,8 @@ def print_table(rows: list[dict[str, Any]], index: Path, wall_s: float, workers:
             print(f"{r['mission']}: {r['error']}")
     counts = _counts(rows)
     done = ", ".join(f"{n} {k}" for k, n in counts.items() if n)
-    print(f"{len(rows)} missions: {done}; {wall_s:.1f} s on {workers} workers")
+    ran = f"; {wall_s:.1f} s on {workers} workers" if workers else ""
+    print(f"{len(rows)} missions: {done}{ran}")
     print(f"site index: {index}")
 
 
@@ -102,6 +103,8 @@ def register(app: typer.Typer) -> None:
         from aftershock.pipeline.site_index import INDEX_FILE, write_index
 
         cfg = build_config(config, overrides, labeller, max_scans=max_scans)
+        if address is not None:
+            br.check_reachable(address)  # before anything is written, even when every mission is complete
         out = out.expanduser().resolve()
         missions = expand_sources(sources, exclude=out)
         if not missions:

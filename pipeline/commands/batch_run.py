@@ -220,7 +220,7 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
 
     t0 = perf_counter()
     folder = Path(task.folder)
-    row = empty_row(task.name, task.source) | {"config_hash": task.config_hash, "node": socket.gethostname()}
+    row = empty_row(task.name, task.source) | {"config_hash": task.config_hash, "node": _node_name()}
     row["folder"] = str(folder)
     notes: list[str] = []
     progress: ProgressSink | None = None
@@ -259,6 +259,8 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
     row["finished_at"] = datetime.now(UTC).isoformat(timespec="seconds")
     if board is not None:
         board.done.remote(task.name)
+    if row["status"] == STATUS_FAILED and folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()  # nothing was written: leave no empty folder behind
     if row["status"] == STATUS_OK:
         marker = {"config_hash": task.config_hash, "row": row}
         try:
@@ -266,6 +268,18 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         except OSError as exc:
             row["status"], row["error"] = STATUS_FAILED, f"{folder / MARKER_FILE}: cannot write: {exc.strerror}"
     return row
+
+
+def _node_name() -> str:
+    """The host and Ray node (several nodes may share a host) that ran a mission."""
+    try:
+        import ray
+
+        node = ray.get_runtime_context().get_node_id()[:8]
+    except Exception:  # not inside Ray (a direct call, as in tests)
+        node = ""
+    host = socket.gethostname()
+    return f"{host}/{node}" if node else host
 
 
 def _fill_row(row: dict[str, Any], result: Any, extra: dict[str, Any], folder: Path, damage: bool) -> None:
@@ -338,27 +352,27 @@ def parse_address(address: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
+HTTP2_PREFACE: Final = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])  # + empty SETTINGS
+HTTP2_SETTINGS: Final = 4
+
+
 def check_reachable(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
-    """Fail fast, in one line, when nothing that speaks gRPC answers at the address (Ray itself would
-    retry for minutes)."""
+    """Fail fast, in one line, unless a gRPC server (Ray's head) answers at the address: Ray itself
+    would retry for minutes. gRPC speaks HTTP/2, whose server answers a connection preface with a
+    SETTINGS frame; anything else (nothing listening, another protocol, silence) is refused."""
     host, port = parse_address(address)
     try:
-        with socket.create_connection((host, port), timeout=timeout_s):
-            pass
+        with socket.create_connection((host, port), timeout=timeout_s) as conn:
+            conn.settimeout(timeout_s)
+            conn.sendall(HTTP2_PREFACE)
+            header = conn.recv(9)
+    except TimeoutError:
+        header = b""
     except OSError as exc:
         reason = exc.strerror or str(exc) or type(exc).__name__
         raise AftershockError(f"--address {address}: cannot reach a Ray cluster there ({reason})") from None
-    import grpc
-
-    channel = grpc.insecure_channel(f"{host}:{port}")
-    try:
-        grpc.channel_ready_future(channel).result(timeout=timeout_s)
-    except grpc.FutureTimeoutError:
-        raise AftershockError(
-            f"--address {address}: something listens there but it does not answer as a Ray cluster (no gRPC)"
-        ) from None
-    finally:
-        channel.close()
+    if len(header) < 4 or header[3] != HTTP2_SETTINGS:
+        raise AftershockError(f"--address {address}: something listens there but does not answer as a Ray cluster")
 
 
 def start_ray(address: str | None, workers: int | None) -> Any:
