@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-all train screenshot clean
+.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -60,7 +60,11 @@ bench-lrgnet: setup
 bench-transfer: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_transfer.py
 
-bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer
+# Many missions at once: 8 simulated 300-scan missions on a local Ray instance, 2 workers against 1.
+bench-batch: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_batch.py
+
+bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch
 
 train: setup
 	$(BIN)/aftershock train mcpnet
