@@ -143,8 +143,9 @@ def test_local_ray_on_loopback_and_ctrl_c(tmp_path: Path) -> None:
     out = tmp_path / "out"
     args = ["sim://office?seed=1&scans=6&sensor=vlp16-20hz", "sim://disaster?seed=2&scans=3000&sensor=vlp16-20hz"]
     cmd = [*CLI, "batch", *args, "--out", str(out), "--workers", "2", *FAST]
+    # Its own process group, signalled as a whole: what a terminal's Ctrl-C does (Ray's servers included).
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
-                            preexec_fn=interruptible)  # fmt: skip
+                            preexec_fn=interruptible, start_new_session=True)  # fmt: skip
     small = out / "sim-office-seed-1-scans-6-sensor-vlp16-20hz"
     big = out / "sim-disaster-seed-2-scans-3000-sensor-vlp16-20hz"
     ports: list[tuple[str, int]] = []
@@ -155,7 +156,7 @@ def test_local_ray_on_loopback_and_ctrl_c(tmp_path: Path) -> None:
     pids = {proc.pid} | {p.pid for p in psutil.Process(proc.pid).children(recursive=True)}
     ports = _listening_ports(pids)
     time.sleep(1.0)
-    proc.send_signal(signal.SIGINT)
+    os.killpg(proc.pid, signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
     assert ports and all(ip in ("127.0.0.1", "::ffff:127.0.0.1") for ip, _ in ports), ports

@@ -23,11 +23,13 @@ import hashlib
 import json
 import logging
 import os
+import signal
 import socket
 import sys
+import threading
 import traceback
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -375,6 +377,18 @@ def check_reachable(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
         raise AftershockError(f"--address {address}: something listens there but does not answer as a Ray cluster")
 
 
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def start_ray(address: str | None, workers: int | None) -> Any:
     """Join the cluster at `address`, or start a local instance on 127.0.0.1 with `workers` CPUs."""
     local = address is None or _loopback(parse_address(address)[0])
@@ -391,14 +405,17 @@ def start_ray(address: str | None, workers: int | None) -> Any:
         ray_constants.ENABLE_RAY_CLUSTER = False  # already read if ray was imported before
     common: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False, "configure_logging": True}
     if address is None:
-        ray.init(
-            address="local",
-            num_cpus=workers or os.cpu_count() or 1,
-            num_gpus=0,
-            include_dashboard=False,
-            object_store_memory=OBJECT_STORE_BYTES,
-            **common,
-        )
+        # Ray's servers stay in the terminal's process group: started with SIGINT ignored (inherited), a
+        # Ctrl-C reaches only this driver, which then cancels the missions and stops Ray in order.
+        with _sigint_ignored():
+            ray.init(
+                address="local",
+                num_cpus=workers or os.cpu_count() or 1,
+                num_gpus=0,
+                include_dashboard=False,
+                object_store_memory=OBJECT_STORE_BYTES,
+                **common,
+            )
     else:
         try:
             ray.init(address=address, **common)
@@ -465,19 +482,29 @@ def run_missions(
                 on_update(None, {k: v for k, v in running.items() if k in {t.name for t in pending.values()}})
         except KeyboardInterrupt:
             run.interrupted = True
-            for ref, task in pending.items():
-                ray.cancel(ref, force=True)
-                row = empty_row(task.name, task.source) | {"status": STATUS_INTERRUPTED, "folder": task.folder}
-                row["config_hash"] = task.config_hash
-                run.rows.append(row)
-            for task in queue:
-                row = empty_row(task.name, task.source) | {"status": STATUS_INTERRUPTED, "folder": task.folder}
-                row["error"] = "not started (interrupted)"
-                run.rows.append(row)
+            with _sigint_ignored():  # a second Ctrl-C must not cut the clean-up short
+                _cancel(ray, run, pending, queue)
     finally:
         run.wall_time_s = perf_counter() - t0
-        ray.shutdown()
+        with _sigint_ignored():
+            ray.shutdown()
     return run
+
+
+def _cancel(ray: Any, run: BatchRun, pending: dict[Any, MissionTask], queue: list[MissionTask]) -> None:
+    """After Ctrl-C: stop the running missions (their folders stay incomplete, so they are redone next time)
+    and list them, and those never started, as interrupted."""
+    for ref, task in pending.items():
+        ray.cancel(ref, force=True)
+        row = empty_row(task.name, task.source) | {"status": STATUS_INTERRUPTED, "folder": task.folder}
+        row["config_hash"] = task.config_hash
+        row["error"] = "stopped (interrupted)"
+        run.rows.append(row)
+    for task in queue:
+        row = empty_row(task.name, task.source) | {"status": STATUS_INTERRUPTED, "folder": task.folder}
+        row["config_hash"] = task.config_hash
+        row["error"] = "not started (interrupted)"
+        run.rows.append(row)
 
 
 def _result(ray: Any, ref: Any, task: MissionTask) -> dict[str, Any]:
