@@ -20,6 +20,7 @@ import pytest
 from fixtures import interruptible, truncate_in_chunk
 from rrd_read import read_rrd
 
+from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.commands.batch_run import MARKER_FILE, completed_row
 from aftershock.pipeline.commands.batch_sources import expand_sources, name_missions
@@ -168,38 +169,48 @@ def test_local_ray_on_loopback_and_ctrl_c(tmp_path: Path) -> None:
     assert "interrupted" in stdout
 
 
-def test_unreachable_address_is_one_line(tmp_path: Path) -> None:
+def _main(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(["batch", *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_unreachable_address_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    proc = _batch(["sim://office?scans=2", "--out", str(tmp_path / "o"), "--address", f"127.0.0.1:{port}"])
-    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and f"127.0.0.1:{port}" in proc.stderr
+    args = ["sim://office?scans=2", "--out", str(tmp_path / "o"), "--address"]
+    code, _, err = _main([*args, f"127.0.0.1:{port}"], capsys)
+    assert code == 2 and err.count("\n") == 1 and f"127.0.0.1:{port}" in err
     assert not (tmp_path / "o").exists()
     with socket.socket() as silent:  # something listens but never speaks gRPC: refused in bounded time
         silent.bind(("127.0.0.1", 0))
         silent.listen()
         address = f"127.0.0.1:{silent.getsockname()[1]}"
         t0 = time.perf_counter()
-        proc = _batch(["sim://office?scans=2", "--out", str(tmp_path / "o"), "--address", address], timeout=60)
-        assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and address in proc.stderr
+        code, _, err = _main([*args, address], capsys)
+        assert code == 2 and err.count("\n") == 1 and address in err
         assert time.perf_counter() - t0 < 30
+    code, _, err = _main([*args, "nowhere"], capsys)
+    assert code == 2 and "HOST:PORT" in err
 
 
-def test_output_folder_of_other_results_refused(tmp_path: Path) -> None:
+def test_output_folder_of_other_results_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """No Ray needed: every source is bad, so nothing runs, but the folder and index are written."""
     out = tmp_path / "out"
-    proc = _batch([str(tmp_path / "nothing.mcap"), "--out", str(out), *FAST])
-    assert proc.returncode == 1 and "no such file" in proc.stdout
+    missing = str(tmp_path / "nothing.mcap")
+    code, stdout, _ = _main([missing, "--out", str(out), *FAST], capsys)
+    assert code == 1 and "no such file" in stdout
     assert pq.read_table(out / "missions.parquet").to_pylist()[0]["status"] == "failed"
-    proc = _batch([str(tmp_path / "nothing.mcap"), "--out", str(out), "--damage", *FAST])
-    assert proc.returncode == 2 and "damage" in proc.stderr and proc.stderr.count("\n") == 1
-    proc = _batch([str(tmp_path / "nothing.mcap"), "--out", str(out), "--damage", "--force", *FAST])
-    assert proc.returncode == 1
+    code, _, err = _main([missing, "--out", str(out), "--damage", *FAST], capsys)
+    assert code == 2 and "damage" in err and err.count("\n") == 1
+    code, _, _ = _main([missing, "--out", str(out), "--damage", "--force", *FAST], capsys)
+    assert code == 1
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
-    proc = _batch([str(tmp_path / "nothing.mcap"), "--out", str(foreign)])
-    assert proc.returncode == 2 and "not a batch" in proc.stderr
+    code, _, err = _main([missing, "--out", str(foreign)], capsys)
+    assert code == 2 and "not a batch" in err
     assert (foreign / "notes.txt").read_text() == "mine"
 
 

@@ -147,7 +147,10 @@ def name_missions(missions: list[MissionSource], taken: dict[str, str] | None = 
         counts[s] = counts.get(s, 0) + 1
     out = []
     for m, stem in zip(missions, stems, strict=True):
-        clash = counts[stem] > 1 or taken.get(stem, m.source) != m.source
+        # The plain stem when no other source wants it (here or in the output folder already); a source
+        # that already holds the stem in the output folder keeps it, so its results are found again.
+        held = taken.get(stem)
+        clash = held != m.source if held is not None else counts[stem] > 1
         name = f"{stem}-{short_hash(m.source)}" if clash else stem
         out.append(MissionSource(m.source, name, m.error))
     return out
