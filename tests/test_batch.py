@@ -108,6 +108,11 @@ def test_batch_on_a_two_node_cluster(cluster: str, lidar_dir: Path, tmp_path: Pa
     assert table["office"]["path_length_m"] > 0 and table["office"]["duration_s"] > 0
     assert table["velodyne_vlp16_indoor"]["ate_m"] is None  # no truth in a real log
     assert table["cut"]["scans"] < 12 and "damage" in (table["cut"]["warnings"] or "").lower()
+    import duckdb  # the index as a user queries it
+
+    sql = "SELECT mission, scans, objects FROM read_parquet(?) WHERE status = 'ok' AND ate_m IS NOT NULL ORDER BY 1"
+    got = duckdb.execute(sql, [str(out / "missions.parquet")]).fetchall()
+    assert got == [(n, table[n]["scans"], table[n]["objects"]) for n in sorted(good) if table[n]["ate_m"] is not None]
     nodes = {table[n]["node"] for n in good}
     assert len(nodes) == 2, nodes  # both nodes of the cluster ran missions
 
