@@ -15,10 +15,12 @@ from typing import Any, Final
 
 import typer
 
+from aftershock.pipeline.commands.run import LABELLER_HELP
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import bar, enabled
 
 TABLE_ROWS: Final = 40  # the terminal table stops here; the index has them all
+DEFAULT_WORKER_MEMORY_GB: Final = 2.0  # a 3,000-scan mission peaks at 0.7 GB (README); ample for MCPNet's torch
 
 
 def _fmt(value: Any, spec: str = "") -> str:
@@ -85,12 +87,15 @@ def register(app: typer.Typer) -> None:
         ),
         address: str | None = typer.Option(None, "--address", help="Join this Ray cluster (HOST:PORT of its head)."),
         damage: bool = typer.Option(False, "--damage", help="Cracks and story drift/tilt on each mission's map."),
-        labeller: str | None = typer.Option(None, "--labeller", help="As for `run`."),
+        labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
         config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
         overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
         max_scans: int | None = typer.Option(None, "--max-scans", help="Stop each mission after this many scans."),
         worker_memory: float = typer.Option(
-            2.0, "--worker-memory", min=0.1, help="GB of memory per worker (Ray packs missions by it; bound enforced)."
+            DEFAULT_WORKER_MEMORY_GB,
+            "--worker-memory",
+            min=0.1,
+            help="GB of memory per worker (Ray packs missions by it; bound enforced).",
         ),
         force: bool = typer.Option(False, "--force", help="Redo complete missions; write over another configuration."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),

@@ -63,7 +63,6 @@ CONNECT_TIMEOUT_S: Final = 5.0  # reaching --address (TCP, then the gRPC handsha
 OBJECT_STORE_BYTES: Final = 200 * 2**20  # results are rows of numbers; Ray's default is 30 % of the RAM
 PROGRESS_EVERY_S: Final = 0.5  # how often a mission reports its scans (and checks its memory)
 POLL_S: Final = 0.5
-DEFAULT_WORKER_MEMORY_GB: Final = 2.0  # a 3,000-scan mission peaks at 0.7 GB (README); torch adds ~0.3 GB
 
 
 # ----------------------------------------------------------------------------------- the configuration
