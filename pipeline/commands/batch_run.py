@@ -346,8 +346,10 @@ def _loopback(host: str) -> bool:
 
 
 def parse_address(address: str) -> tuple[str, int]:
-    """HOST:PORT of a Ray cluster (`ray://` prefix allowed)."""
-    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    """HOST:PORT of a Ray cluster's head (its GCS address, as `ray start --head` prints it)."""
+    if "://" in address:  # Ray Client (ray://) needs other packages and runs the driver remotely: not this path
+        raise AftershockError(f"--address {address}: give the head's HOST:PORT (as `ray start --head` prints it)")
+    host, sep, port = address.rpartition(":")
     if not sep or not host or not port.isdigit():
         raise AftershockError(f"--address {address!r}: expected HOST:PORT of a Ray cluster's head (e.g. 10.0.0.5:6379)")
     return host.strip("[]"), int(port)
@@ -477,17 +479,29 @@ def run_missions(
                     row = _result(ray, ref, task)
                     run.rows.append(row)
                     on_update(row, {})
-                running = ray.get(board.snapshot.remote(), timeout=30)
-                on_update(None, {k: v for k, v in running.items() if k in {t.name for t in pending.values()}})
+                on_update(None, _running(ray, board, pending))
         except KeyboardInterrupt:
             run.interrupted = True
             with _sigint_ignored():  # a second Ctrl-C must not cut the clean-up short
                 _cancel(ray, run, pending, queue)
+        except (ray.exceptions.RayError, ConnectionError) as exc:  # the cluster went away under us
+            where = f"the Ray cluster at {address}" if address else "the local Ray instance"
+            raise AftershockError(f"lost {where} ({_one_line(exc)}); finished missions are complete") from None
     finally:
         run.wall_time_s = perf_counter() - t0
         with _sigint_ignored():
             ray.shutdown()
     return run
+
+
+def _running(ray: Any, board: Any, pending: dict[Any, MissionTask]) -> dict[str, tuple[int, float]]:
+    """Scans and scans/s of the running missions; empty if the board cannot answer (it is only a display)."""
+    try:
+        running = ray.get(board.snapshot.remote(), timeout=10)
+    except ray.exceptions.RayError:
+        return {}
+    names = {t.name for t in pending.values()}
+    return {k: v for k, v in running.items() if k in names}
 
 
 def _cancel(ray: Any, run: BatchRun, pending: dict[Any, MissionTask], queue: list[MissionTask]) -> None:
