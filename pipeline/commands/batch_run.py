@@ -238,10 +238,16 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         outputs = Outputs(save=folder / RECORDING_FILE, export=folder, force=True)  # the folder is being redone
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            result, extra, _info = run_source(
-                task.source, cfg, outputs, damage=task.damage, quiet=True, notice=notes.append, extra_sinks=[progress]
-            )
-        notes.extend(str(w.message) for w in caught)
+            try:
+                options = {"damage": task.damage, "quiet": True, "notice": notes.append, "extra_sinks": [progress]}
+                result, extra, info = run_source(task.source, cfg, outputs, **options)
+            finally:  # a log cut off part-way warns, then may still fail: keep the warning either way
+                notes.extend(str(w.message) for w in caught)
+        report = info.report
+        if report.damage:
+            notes.append(f"the log ends in damage: {report.damage}")
+        if report.skipped:
+            notes.append(f"{len(report.skipped)} messages skipped, the first: {report.skipped[0][1]}")
         _fill_row(row, result, extra, folder, task.damage)
         row["status"] = STATUS_INTERRUPTED if result.summary.interrupted else STATUS_OK
     except KeyboardInterrupt:
