@@ -54,6 +54,7 @@ COLUMNS: Final[tuple[tuple[str, pa.DataType, str], ...]] = (
     ("environment", pa.string(), "indoor | outdoor"),
     ("labeller", pa.string(), "the labeller used"),
     ("processing_s", pa.float64(), "wall time of the mission's task"),
+    ("cpu_s", pa.float64(), "CPU time the mission's worker spent on it (all its threads)"),
     ("scans_per_second", pa.float64(), "stream throughput of the mission"),
     ("peak_rss_mb", pa.float64(), "largest resident memory of the worker seen during the mission"),
     ("node", pa.string(), "host that ran the mission"),

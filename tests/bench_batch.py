@@ -6,7 +6,8 @@ then with 2. Prints both throughputs (scans/s over all missions) and their ratio
 
 Two clocks: the whole command (Ray's start-up included, as a user waits for it) and the missions' own span
 (`wall_time_s`: from Ray ready to the last mission done). The machine is shared, so the load average
-before and after each run is printed beside the figures; 1 worker runs first."""
+before and after each run is printed beside the figures, with the missions running at once and the cores
+they actually got (their CPU time over the span); 1 worker runs first."""
 
 from __future__ import annotations
 
@@ -49,6 +50,10 @@ def _run(out: Path, workers: int) -> dict:
         "scans_per_s_missions": scans / report["wall_time_s"],
         "mission_scans_per_s": sorted(r["scans_per_second"] for r in rows),
         "peak_rss_mb": max(r["peak_rss_mb"] for r in rows),
+        # Missions running at once (their task time over the span) and cores they actually got (CPU time over
+        # the span): on a shared machine the second is what the throughput can follow.
+        "overlap": sum(r["processing_s"] for r in rows) / report["wall_time_s"],
+        "cores_used": sum(r["cpu_s"] for r in rows) / report["wall_time_s"],
         "load_before": load_before,
         "load_after": os.getloadavg(),
     }
@@ -62,16 +67,19 @@ def test_two_workers_against_one(tmp_path: Path) -> None:
     what = f"{MISSIONS} simulated missions x {SCANS} scans (VLP-16, MCPNet, Rerun recording each)"
     print(f"\n{what}, cores: {os.cpu_count()}")
     print("workers | command s | scans/s (command) | missions s | scans/s (missions) | per-mission scans/s", end="")
-    print(" | peak RSS MB | load before -> after")
+    print(" | missions at once | cores used | peak RSS MB | load before -> after")
     for r in (one, two):
         per = r["mission_scans_per_s"]
         print(
             f"{r['workers']} | {r['command_s']:.1f} | {r['scans_per_s_command']:.2f} | {r['missions_s']:.1f} | "
-            f"{r['scans_per_s_missions']:.2f} | {per[0]:.1f}–{per[-1]:.1f} | {r['peak_rss_mb']:.0f} | "
+            f"{r['scans_per_s_missions']:.2f} | {per[0]:.1f}–{per[-1]:.1f} | {r['overlap']:.2f} | "
+            f"{r['cores_used']:.2f} | {r['peak_rss_mb']:.0f} | "
             f"{' '.join(f'{v:.1f}' for v in r['load_before'])} -> {' '.join(f'{v:.1f}' for v in r['load_after'])}"
         )
     ratio_missions = two["scans_per_s_missions"] / one["scans_per_s_missions"]
     ratio_command = two["scans_per_s_command"] / one["scans_per_s_command"]
     print(f"2 workers / 1 worker: {ratio_missions:.2f}x (missions), {ratio_command:.2f}x (whole command)", end="")
     print(f"; target {TARGET_RATIO}x")
-    assert ratio_missions > 1.0  # the figure is the result; this only catches a batch that does not parallelise
+    # The ratio is the figure (it follows the cores the machine gives, printed beside it); what must hold
+    # whatever the load is that two workers really run two missions at a time, and one worker one.
+    assert two["overlap"] >= 1.7 and one["overlap"] <= 1.05

@@ -20,6 +20,7 @@ from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import bar, enabled
 
 TABLE_ROWS: Final = 40  # the terminal table stops here; the index has them all
+NAME_WIDTH: Final = 24  # mission names in the progress bar
 DEFAULT_WORKER_MEMORY_GB: Final = 2.0  # a 3,000-scan mission peaks at 0.7 GB (README); ample for MCPNet's torch
 
 
@@ -64,6 +65,11 @@ def print_table(rows: list[dict[str, Any]], index: Path, wall_s: float, workers:
     ran = f"; {wall_s:.1f} s on {workers} workers" if workers else ""
     print(f"{len(rows)} missions: {done}{ran}")
     print(f"site index: {index}")
+
+
+def _short(name: str, width: int = NAME_WIDTH) -> str:
+    """A mission's name cut for the progress bar (several share one line)."""
+    return name if len(name) <= width else name[: width - 1] + "…"
 
 
 def _counts(rows: list[dict[str, Any]]) -> dict[str, int]:
@@ -137,7 +143,8 @@ def register(app: typer.Typer) -> None:
                     b.update(1)
                     write_index(index, br.merge_index(out, rows, fingerprint))  # up to date after every mission
                 if running:
-                    b.set_postfix_str("  ".join(f"{k} {n} scans {r:.1f}/s" for k, (n, r) in sorted(running.items())))
+                    shown = (f"{_short(k)} {n} scans {r:.1f}/s" for k, (n, r) in sorted(running.items()))
+                    b.set_postfix_str(" | ".join(shown))
 
             run = br.run_missions(tasks, address, workers, memory, on_update)
         finished = {r["mission"] for r in rows}

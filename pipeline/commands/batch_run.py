@@ -214,12 +214,14 @@ def _one_line(exc: BaseException) -> str:
 
 def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
     """Run one mission (in a Ray worker) and return its index row; never raises for a bad log."""
+    import psutil
     import torch
 
     from aftershock import sources
     from aftershock.pipeline.commands.run import Outputs, run_source
 
     t0 = perf_counter()
+    cpu0 = psutil.Process().cpu_times()
     folder = Path(task.folder)
     row = empty_row(task.name, task.source) | {"config_hash": task.config_hash, "node": _node_name()}
     row["folder"] = str(folder)
@@ -272,6 +274,8 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         row["peak_rss_mb"] = round(progress.peak_rss / 2**20, 1)
     row["warnings"] = "\n".join(dict.fromkeys(notes)) or None
     row["processing_s"] = round(perf_counter() - t0, 3)
+    cpu1 = psutil.Process().cpu_times()
+    row["cpu_s"] = round(cpu1.user + cpu1.system - cpu0.user - cpu0.system, 3)
     row["finished_at"] = datetime.now(UTC).isoformat(timespec="seconds")
     if board is not None:
         board.done.remote(task.name)
@@ -408,6 +412,10 @@ def _sigint_ignored() -> Iterator[None]:
 def start_ray(address: str | None, workers: int | None) -> Any:
     """Join the cluster at `address`, or start a local instance on 127.0.0.1 with `workers` CPUs."""
     local = address is None or _loopback(parse_address(address)[0])
+    if address is None:
+        # Ray starts its workers 15 steps nicer than itself, to keep its own servers responsive; here the
+        # missions are the work, so they run at the niceness the user gave the command.
+        os.environ.setdefault("RAY_worker_niceness", "0")
     if local:
         # Ray takes the machine's outward address as the node's and listens on it; with clusters "off" it
         # uses 127.0.0.1 for every server, worker and the object manager (a loopback-only cluster).
