@@ -24,7 +24,7 @@ from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.commands.batch_run import MARKER_FILE, completed_row
 from aftershock.pipeline.commands.batch_sources import expand_sources, name_missions
-from aftershock.pipeline.site_index import COLUMN_NAMES, OBJECT_COLUMNS
+from aftershock.pipeline.commands.site_index import COLUMN_NAMES, OBJECT_COLUMNS
 from aftershock.sinks import rerun_blueprint as L
 
 CLI = [sys.executable, "-m", "aftershock.pipeline"]

@@ -111,7 +111,7 @@ def register(app: typer.Typer) -> None:
         from aftershock.pipeline.commands import batch_run as br
         from aftershock.pipeline.commands.batch_sources import expand_sources, name_missions
         from aftershock.pipeline.commands.run import build_config
-        from aftershock.pipeline.site_index import INDEX_FILE, write_index
+        from aftershock.pipeline.commands.site_index import INDEX_FILE, write_index
 
         cfg = build_config(config, overrides, labeller, max_scans=max_scans)
         if address is not None:

@@ -39,10 +39,7 @@ from typing import Any, Final
 import numpy as np
 
 from aftershock.pipeline.commands.batch_sources import MissionSource
-from aftershock.pipeline.config import Config
-from aftershock.pipeline.errors import AftershockError, OutputError
-from aftershock.pipeline.sink import Sink, Stage
-from aftershock.pipeline.site_index import (
+from aftershock.pipeline.commands.site_index import (
     INDEX_FILE,
     OBJECT_COLUMNS,
     STATUS_FAILED,
@@ -51,6 +48,9 @@ from aftershock.pipeline.site_index import (
     empty_row,
     read_index,
 )
+from aftershock.pipeline.config import Config
+from aftershock.pipeline.errors import AftershockError, OutputError
+from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.types import Frame
 
 MANIFEST_FILE: Final = "batch.json"
