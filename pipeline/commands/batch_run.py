@@ -434,7 +434,7 @@ def start_ray(address: str | None, workers: int | None) -> Any:
         with _sigint_ignored():
             ray.init(
                 address="local",
-                num_cpus=workers or os.cpu_count() or 1,
+                num_cpus=workers or len(os.sched_getaffinity(0)),  # the cores this process may use
                 num_gpus=0,
                 include_dashboard=False,
                 object_store_memory=OBJECT_STORE_BYTES,
