@@ -143,12 +143,12 @@ def _listening_ports(pids: set[int]) -> list[tuple[str, int]]:
 
 def test_local_ray_on_loopback_and_ctrl_c(tmp_path: Path) -> None:
     """A local instance (no --address): every port it opens is on 127.0.0.1; Ctrl-C leaves the finished
-    mission complete and the interrupted one to be redone."""
+    mission complete (with its damage report) and the interrupted one to be redone."""
     import psutil
 
     out = tmp_path / "out"
     args = ["sim://office?seed=1&scans=6&sensor=vlp16-20hz", "sim://disaster?seed=2&scans=3000&sensor=vlp16-20hz"]
-    cmd = [*CLI, "batch", *args, "--out", str(out), "--workers", "2", *FAST]
+    cmd = [*CLI, "batch", *args, "--out", str(out), "--workers", "2", "--damage", *FAST]
     # Its own process group, signalled as a whole: what a terminal's Ctrl-C does (Ray's servers included).
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
                             preexec_fn=interruptible, start_new_session=True)  # fmt: skip
@@ -169,6 +169,10 @@ def test_local_ray_on_loopback_and_ctrl_c(tmp_path: Path) -> None:
     assert "interrupted" in stderr and "Traceback" not in stderr
     rows = {r["mission"]: r for r in pq.read_table(out / "missions.parquet").to_pylist()}
     assert rows[small.name]["status"] == "ok" and (small / MARKER_FILE).is_file()
+    report = json.loads((small / "damage.json").read_text())  # --damage: the report and its figures in the index
+    done = rows[small.name]
+    assert done["cracks"] == len(report["cracks"]) and done["severe_cracks"] == report["severe_cracks"]
+    assert done["damage"] == str(small / "damage.json") and done["worst_drift_mm"] is not None
     assert rows[big.name]["status"] == "interrupted"
     assert completed_row(big, rows[big.name]["source"], rows[small.name]["config_hash"]) is None  # redone next time
     assert "interrupted" in stdout
