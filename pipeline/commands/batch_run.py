@@ -242,16 +242,7 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
             warnings.simplefilter("always")
             try:
                 options = {"damage": task.damage, "quiet": True, "notice": notes.append, "extra_sinks": [progress]}
-            try:
-                options = {"damage": task.damage, "quiet": True, "notice": notes.append, "extra_sinks": [progress]}
                 result, extra, info = run_source(task.source, cfg, outputs, **options)
-            finally:  # a log cut off part-way warns, then may still fail: keep the warning either way
-                notes.extend(str(w.message) for w in caught)
-        report = info.report
-        if report.damage:
-            notes.append(f"the log ends in damage: {report.damage}")
-        if report.skipped:
-            notes.append(f"{len(report.skipped)} messages skipped, the first: {report.skipped[0][1]}")
             finally:  # a log cut off part-way warns, then may still fail: keep the warning either way
                 notes.extend(str(w.message) for w in caught)
         report = info.report
