@@ -190,11 +190,6 @@ class Registrar:
         self._last_stamp_ns: int | None = None
         self._fraction = 0.0
 
-    @classmethod
-    def from_config(cls, cfg: RegisterConfig, environment: Environment) -> Registrar:
-        """KISS-ICP set up for `environment` (unset sizes and ranges take that environment's defaults)."""
-        return cls(cfg, environment)
-
     def register(self, frame: Frame) -> Frame:
         scan = frame.scan
         delta = self.kiss.last_delta.copy()
@@ -296,7 +291,7 @@ def make_registrar(cfg: RegisterConfig, environment: Environment) -> Registrar |
     """KISS-ICP, or the log's true poses when `registration.poses` is "truth"."""
     if cfg.poses == "truth":
         return TruthPoses()
-    return Registrar.from_config(cfg, environment)
+    return Registrar(cfg, environment)
 
 
 def register_stage(frames: Iterable[Frame], registrar: Registrar | TruthPoses) -> Iterator[Frame]:

@@ -17,6 +17,7 @@ from mcap.writer import Writer as McapWriter
 
 from aftershock.pipeline.pointcloud2 import (
     POINTCLOUD2_MSGDEF,
+    POINTFIELD_MSGDEF,
     POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
     pose_stamped_message,
@@ -27,7 +28,7 @@ PERIOD_NS: Final[int] = 100_000_000
 Columns = Mapping[str, np.ndarray]
 
 # The ROS 1 definition as a ROS 1 recorder stores it (Header with seq, `time` stamp).
-ROS1_POINTCLOUD2_MSGDEF: Final[str] = """std_msgs/Header header
+ROS1_POINTCLOUD2_MSGDEF: Final[str] = f"""std_msgs/Header header
 uint32 height
 uint32 width
 sensor_msgs/PointField[] fields
@@ -43,18 +44,7 @@ time stamp
 string frame_id
 ================================================================================
 MSG: sensor_msgs/PointField
-uint8 INT8=1
-uint8 UINT8=2
-uint8 INT16=3
-uint8 UINT16=4
-uint8 INT32=5
-uint8 UINT32=6
-uint8 FLOAT32=7
-uint8 FLOAT64=8
-string name
-uint32 offset
-uint8 datatype
-uint32 count
+{POINTFIELD_MSGDEF}
 """
 
 
