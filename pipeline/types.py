@@ -176,6 +176,7 @@ class Crack:
     width_resolved: bool = True  # False: narrower than the point spacing; width_m is then the spacing
     max_width_m: float = float("nan")  # widest part of the opening (90th percentile over the crack's slices)
     rect_width_m: float = float("nan")  # short side of the minimum-area rectangle (the whole group's extent)
+    depth_contrast: float = float("nan")  # how far its deepest points lie behind the surface around, in noise units
 
 
 @dataclass(slots=True)

@@ -402,3 +402,32 @@ def test_nan_points_are_left_out_with_a_note() -> None:
     result = find_cracks(LabelledCloud(pts), CrackConfig(), mask, features="curvature", resolution_m=0.004)
     assert result.notes and "non-finite" in result.notes[0]
     assert np.isfinite(result.cloud.points).all() and result.scores is not None
+
+
+def test_a_flat_streak_is_not_recessed_a_crack_and_a_corner_are_told_apart() -> None:
+    """A column's two faces: a 6 mm crack 3 mm deep on one, an equally dark flat dirt streak on the other, the
+    corner between them. Detected as bands three times wider than they are (smoothing and growth), both are
+    cracks to colour; only the crack lies behind the surface around it (in local noise units), so with a
+    depth limit the streak is dropped and the crack is renumbered first."""
+    from aftershock.pipeline.damage.recess import depth_z, keep_recessed
+
+    rng = np.random.default_rng(0)
+    s, z = np.meshgrid(np.arange(0, 0.3, 0.002), np.arange(0, 0.6, 0.002), indexing="ij")
+    uv = np.c_[s.ravel(), z.ravel()]
+    band = np.abs(uv[:, 0] - 0.15) <= 0.009
+    crack = (np.abs(uv[:, 0] - 0.15) <= 0.003) & (uv[:, 1] < 0.5)  # shorter than the streak
+    faces = [np.c_[0.3 - uv[:, 0], -0.003 * crack, uv[:, 1]], np.c_[np.zeros(len(uv)), uv[:, 0], uv[:, 1]]]
+    pts = np.concatenate(faces) + rng.normal(0, 0.0004, (2 * len(uv), 3))
+    on_crack = np.r_[band & (uv[:, 1] < 0.5), np.zeros(len(uv), bool)]
+    on_streak = np.r_[np.zeros(len(uv), bool), band]
+    zd = depth_z(pts, on_crack | on_streak, 0.02)
+    corner = (np.abs(pts[:, 0]) < 0.004) | (np.abs(pts[:, 1]) < 0.004)
+    assert np.median(zd[np.r_[crack, np.zeros(len(uv), bool)]]) > 4
+    assert np.median(zd[on_streak]) < 1 and np.median(zd[corner]) < 1.5
+    cracks, ids = measure_cracks(pts, on_crack | on_streak, 0.005, 20, 0.0032, 0.002, min_elongation=3.0)
+    assert len(cracks) == 2 and ids[on_streak][0] == 1  # the streak's band is the larger group
+    kept, kept_ids = keep_recessed(cracks, ids, zd, 0.0)  # no limit: both stay, each with its contrast
+    assert len(kept) == 2 and kept[0].depth_contrast < 2.5 < 4 < kept[1].depth_contrast
+    kept, kept_ids = keep_recessed(cracks, ids, zd, 3.0)
+    assert len(kept) == 1 and kept[0].instance_id == 1 and kept[0].depth_contrast > 4
+    assert (kept_ids[on_crack] == 1).all() and not kept_ids[on_streak].any()

@@ -29,6 +29,7 @@ from aftershock.pipeline.damage.detectors import (
 from aftershock.pipeline.damage.drift import DriftResult, measure_drift
 from aftershock.pipeline.damage.features import FeatureSet, compute_features, parse_features
 from aftershock.pipeline.damage.measure import Scores, fit_plane, measure_cracks, score, supported
+from aftershock.pipeline.damage.recess import depth_z, keep_recessed
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import point_spacing, voxel_downsample
 from aftershock.pipeline.types import Crack, LabelledCloud, Story
@@ -147,6 +148,7 @@ def crack_json(c: Crack) -> dict[str, Any]:
         "width_m": round(c.width_m, 4),
         "max_width_m": _round(c.max_width_m),
         "rectangle_width_m": _round(c.rect_width_m),
+        "depth_contrast": _round(c.depth_contrast),
         "points": c.num_points,
         "axis": [round(float(v), 4) for v in c.axis],
         "normal": [round(float(v), 4) for v in c.normal],
@@ -199,8 +201,9 @@ def find_cracks(
     a calibrated null rule that knows an element without cracks, a two-component mixture, or the valley before
     a separate mode of high scores) → scores smoothed over space → support clean-up (drops the smoothing's rim,
     and the thin ends of cracks with it) → growth: points within `cfg.grow_m` of a crack whose smoothed score is
-    nearly above the threshold join it → cracks (connected, elongated groups); with `cfg.cracks_only` the crack
-    points are those of reported cracks. Each crack's opening is measured on all of its points, as each true
+    nearly above the threshold join it → cracks (connected, elongated groups) → each crack's depth contrast
+    (`recess`), and with `cfg.depth_sigmas` > 0 only cracks at least that recessed stay; with `cfg.cracks_only`
+    the crack points are those of reported cracks. Each crack's opening is measured on all of its points, as each true
     crack's is. Points with non-finite coordinates are left out (`notes` says how many). Fewer than
     `MIN_POINTS` points, or a cloud whose spacing is coarser than `cfg.max_spacing_m`, raise `TooSparseError`
     (the latter unless `check_spacing` is off, for the spacing study)."""
@@ -257,6 +260,9 @@ def find_cracks(
     cracks, ids = measure_cracks(
         part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing, cfg.min_elongation
     )
+    grouped = ids > 0
+    cracks, ids = keep_recessed(cracks, ids, depth_z(part.points, mask, cfg.depth_cell_m), cfg.depth_sigmas)
+    mask &= (ids > 0) | ~grouped  # the points of flat candidates (stains, streaks, shade) are no crack either
     if cfg.cracks_only:
         mask = ids > 0
     scores = None
