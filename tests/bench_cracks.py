@@ -114,13 +114,19 @@ def test_tables(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
 
 
 def test_speed_on_the_90k_column(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
+    """Wall and CPU seconds of the whole crack assessment of the 90,000-point column (one thread). On a machine
+    shared with other jobs the wall time says more about the load than about the method: the CPU time is the
+    figure against the 5 s target."""
     cloud, mask = elements["column2"]
     for feature in (FeatureSet.SHADE_CRACKEMBED, FeatureSet.SHADE, FeatureSet.CRACKEMBED):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = find_cracks(cloud, CrackConfig(), mask, features=feature)
-        seconds = time.perf_counter() - t0
-        print(f"\nspeed: column2 ({len(cloud)} points) with {feature.value}: {seconds:.2f} s {result.timings_s}")
-        assert seconds < 10
+        seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+        print(
+            f"\nspeed: column2 ({len(cloud)} points) with {feature.value}: {cpu:.2f} s CPU, {seconds:.2f} s wall "
+            f"(load average {os.getloadavg()[0]:.1f}) {result.timings_s}"
+        )
+        assert cpu < 10
 
 
 def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:

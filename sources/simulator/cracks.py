@@ -8,12 +8,10 @@ varies across the element and from face to face. Concrete is bare (grey or buff,
 painted (a smooth, even coat). Parts of the surface can be hidden (occlusion: no points there).
 
 Cracks wander across a face, narrow towards their ends with an opening that varies along them, some branch,
-some have spalled edges (the opening widens over a short stretch, rougher: such spalls are marked as crack,
-as the field data marks them). A point is a crack point when it lies inside a crack's visible opening; inside,
-the surface drops a little into the crack (a shallow V: a scanner sees only the lips of a narrow opening), is
-somewhat darker, with the darkening fading over the lips, and returns less intensity (through paint, the
-crack shows the concrete underneath). Cracks are as faint as the field data's: a few robust standard
-deviations of the detector's scores above sound concrete, not ten.
+some have spalled edges (the opening widens over a short stretch, shallower and rougher: such spalls are
+marked as crack, as the field data marks them). A point is a crack point when it lies inside a crack's visible
+opening; inside, the surface drops into the crack (a V of the crack's depth), is darker and returns less
+intensity (through paint, the crack shows the concrete underneath).
 """
 
 from __future__ import annotations
@@ -34,9 +32,6 @@ MAX_CRACKS: Final = 16
 BRANCH_CHANCE: Final = 0.4  # share of cracks with one or two branches
 SPALL_CHANCE: Final = 0.3  # share of cracks with a spalled stretch
 PAINT_CHANCE: Final = 0.35  # share of painted elements
-VISIBLE_DEPTH: Final = (0.1, 0.8)  # the visible depth of a crack, in openings
-SPALL_DEPTH_M: Final = 0.002  # a spalled stretch is rough up to this deep
-CRACK_DARKNESS: Final = (0.8, 0.95)  # a crack's colour against the concrete around it
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,18 +199,14 @@ def cracked_element(
         frac = np.clip(1 - (d[inside] + half) / np.maximum(half, 1e-6), 0, 1)  # 1 on the centre line
         # a spalled stretch (much wider than the crack's typical opening) is shallow and rough
         spall = (2 * half > 2.2 * crack.width_m).astype(np.float64)
-        depth = crack.depth_m * (1 - 0.7 * spall) * frac + spall * rng.uniform(0, SPALL_DEPTH_M, len(idx))
+        depth = crack.depth_m * (1 - 0.7 * spall) * frac + spall * rng.uniform(0, 0.004, len(idx))
         offset[idx] -= depth
         if painted:  # the crack shows the bare concrete under the paint
             colors[idx] = 0.4 * colors[idx] + 0.6 * concrete * shade[idx, None]
-        # field data: crack points only ~5-20 % darker and a little browner than the concrete around, and the
-        # darkening bleeds over the crack's lips (a soft edge, not marked as crack)
-        dark = rng.uniform(*CRACK_DARKNESS)
-        colors[idx] = colors[idx] * (dark - 0.06 * frac[:, None]) * np.array([1.0, 0.96, 0.9], np.float32)
-        lip = (d > 0) & (d <= crack.width_m)
-        fade = (1 - d[lip] / crack.width_m)[:, None]
-        colors[cand[lip]] *= 1 - 0.5 * (1 - dark) * fade
-        intensity[idx] *= 0.85 - 0.15 * frac
+        # field data: crack points only ~10-20 % darker and a little browner than the concrete around
+        dark = rng.uniform(0.72, 0.9)
+        colors[idx] = colors[idx] * (dark - 0.12 * frac[:, None]) * np.array([1.0, 0.95, 0.85], np.float32)
+        intensity[idx] *= 0.75 - 0.25 * frac
         mask[idx] = True
         rgb = np.clip(colors[idx].mean(0), 0, 255).round().astype(int)
         cracks[k] = replace(crack, color=(int(rgb[0]), int(rgb[1]), int(rgb[2])))
@@ -288,9 +279,7 @@ def _crack_family(rng: np.random.Generator, f: _Face, el: ElementKind) -> list[C
     center = f.origin + cu * f.u + cv * f.v
     poly = crack_polyline(rng, center, f.u, f.v, length, angle, points=16, wander=0.04)
     widths = _opening(rng, len(poly), width, rng.random() < SPALL_CHANCE)
-    # the depth a scanner sees: its beam reaches only a little way into an opening a few millimetres wide
-    # (the field data's crack points lie as close to the surface around them as sound points do)
-    depth = float(np.clip(width * rng.uniform(*VISIBLE_DEPTH), 0.0003, 0.01))
+    depth = float(np.clip(width * rng.uniform(2, 6), 0.002, 0.05))
     family = [_truth(el, f, poly, widths, depth)]
     if rng.random() < BRANCH_CHANCE:
         for _ in range(int(rng.integers(1, 3))):
