@@ -211,9 +211,10 @@ class CrackConfig(_Section):
         0.0  # points on the scan's edge (cells this many spacings; 0 = off) score at most the median
     )
     cracks_only: bool = True  # crack points are those of reported cracks (not round blobs, not tiny groups)
-    # a reported crack lies at least depth_sigmas local noise sigmas behind the surface around it (90th
-    # percentile over its points; 0 = no test): cracks are openings, stains and streaks are flat (calibrated on simulated
-    # intact elements, chosen leave-one-object-out in bench_cracks); depth against the 3 x 3 x 3 block of these voxels
+    # a reported crack lies at least depth_sigmas local noise sigmas behind the surface around it (90th percentile
+    # over its points; 0 = no test): cracks are openings, stains and streaks are flat (calibrated on simulated
+    # intact elements, chosen leave-one-object-out in bench_cracks: off, since the real elements' cracks are not
+    # recessed in their scans); depth against the plane of the 3 x 3 x 3 block of depth_cell_m voxels
     depth_sigmas: NonNegative = 0.0
     depth_cell_m: Positive = 0.02
     grow_m: NonNegative = (

@@ -48,8 +48,9 @@ def depth_z(points: np.ndarray, candidates: np.ndarray, cell_m: float) -> np.nda
 def keep_recessed(
     cracks: list[Crack], ids: np.ndarray, z: np.ndarray, min_sigmas: float
 ) -> tuple[list[Crack], np.ndarray]:
-    """Sets each crack's `depth_contrast` (the 90th percentile of `z` over its points); with `min_sigmas` > 0 only the cracks
-    at least that recessed stay, renumbered 1..K in their order, and the points of the others are no crack."""
+    """Sets each crack's `depth_contrast` (the 90th percentile of `z` over its points); with `min_sigmas` > 0
+    only the cracks at least that recessed stay, renumbered 1..K in their order, and the points of the others
+    are no crack (id 0)."""
     new_id = np.zeros(len(cracks) + 1, np.int64)
     kept: list[Crack] = []
     for c in cracks:  # one percentile per crack
