@@ -419,6 +419,33 @@ def test_score_contrast_real_against_simulated(elements: dict[str, tuple[Labelle
         print(f"  simulated {kind}: " + ", ".join(f"{v:.1f}" for v in z))
 
 
+def test_depth_of_true_crack_points(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
+    """Do the scans resolve the cracks' depth? The true crack points' depth behind the surface of the other points
+    around them (`recess.depth_z`, the evaluation grid, local noise units; median and 90th percentile) against the
+    sound points', on the real elements and on simulated ones (seeds 100-101)."""
+    from aftershock.pipeline.damage.recess import depth_z
+    from aftershock.pipeline.damage.report import carry_mask, default_resolution
+    from aftershock.pipeline.geometry import voxel_downsample
+    from aftershock.sources.simulator.cracks import cracked_element
+
+    cfg = CrackConfig()
+
+    def depth(cloud: LabelledCloud, mask: np.ndarray) -> str:
+        keep, voxel_of = voxel_downsample(cloud.points, default_resolution(cloud.points))
+        truth = carry_mask(mask, voxel_of, len(keep))
+        z = depth_z(cloud.points[keep], truth, cfg.depth_cell_m)
+        crack, sound = np.percentile(z[truth], [50, 90]), np.percentile(z[~truth], [50, 90])
+        return f"crack {crack[0]:.1f} / {crack[1]:.1f}, sound {sound[0]:.2f} / {sound[1]:.2f}"
+
+    print("\nDepth behind the surface around (local noise units, median / 90th percentile):")
+    for name, (cloud, mask) in elements.items():
+        print(f"  {name:9s} {depth(cloud, mask)}")
+    for kind in SIM_KINDS:
+        for seed in (100, 101):
+            cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind))
+            print(f"  {kind}-{seed:<4d} {depth(cloud, mask)}")
+
+
 def _simulated_matches(
     result: CrackResult, mask: np.ndarray, truth: list[CrackTruth]
 ) -> list[tuple[float, float, float, float]]:
