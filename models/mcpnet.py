@@ -20,11 +20,14 @@ from torch import nn
 
 from aftershock.models.layers import mlp
 from aftershock.models.netconfig import (
+    COARSE_CONTEXT_DIM,
+    COARSE_GEOMETRY_FEATURES,
     CONTEXT_DIM,
     CONTEXT_FEATURES,
     GEOMETRY_FEATURES,
     LAYOUTS,
     POINT_DIM,
+    POINT_FEATURES,
     NetConfig,
 )
 from aftershock.models.pointnet import PointNet
@@ -37,21 +40,28 @@ FORMAT_VERSION: Final = 1
 
 
 class MCPNet(nn.Module):
-    """Context pooling network; `use_context=False` is the same network without the context branch."""
+    """Context pooling network; `use_context=False` is the same network without the context branch. With
+    `cfg.coarse_points` a second, wider context (offsets only) is pooled by a small branch of its own."""
 
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
         self.cfg = cfg
         w = cfg.width
         self.use_context = cfg.kind == "mcpnet"
+        self.use_wide = self.use_context and cfg.coarse_points > 0
         if self.use_context:
             self.context_mlp = mlp(cfg.context_dim, w, w)
-        joined = cfg.point_dim + (w if self.use_context else 0)
+        if self.use_wide:
+            self.wide_mlp = mlp(COARSE_CONTEXT_DIM, cfg.coarse_width, cfg.coarse_width)
+        joined = cfg.point_dim + (w if self.use_context else 0) + (cfg.coarse_width if self.use_wide else 0)
         self.point_mlp = mlp(joined, w)
         self.embed = nn.Linear(w, cfg.embed_dim)
         self.classify = mlp(w + cfg.embed_dim, w, cfg.num_classes, last_relu=False)
 
-    def pool_context(self, context: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    def branch(self, wide: bool) -> nn.Sequential:
+        return self.wide_mlp if wide else self.context_mlp
+
+    def pool_context(self, context: torch.Tensor, mask: torch.Tensor | None, wide: bool = False) -> torch.Tensor:
         """max over neighbours of the shared MLP, absent neighbours left out (0 when a point has none).
 
         max(relu(h)) = relu(max(h)), so the last ReLU runs on the pooled (B, W) rather than on (B, M, W);
@@ -60,33 +70,41 @@ class MCPNet(nn.Module):
             first = mask.to(torch.int8).argmax(dim=1)  # a present neighbour per point (0 when none)
             fill = context[torch.arange(len(context)), first].unsqueeze(1).expand_as(context)
             context = torch.where(mask.unsqueeze(-1), context, fill)
-        lin1, relu1, lin2 = self.context_mlp[0], self.context_mlp[1], self.context_mlp[2]
+        lin1, relu1, lin2 = self.branch(wide)[0], self.branch(wide)[1], self.branch(wide)[2]
         pooled = torch.relu(lin2(relu1(lin1(context))).amax(dim=1))
         if mask is not None:
             pooled = pooled * mask.any(dim=1, keepdim=True).to(pooled.dtype)
         return pooled
 
-    def pool_pairs(self, pairs: torch.Tensor, owner: torch.Tensor, num_points: int) -> torch.Tensor:
+    def pool_pairs(self, pairs: torch.Tensor, owner: torch.Tensor, num_points: int, wide: bool = False) -> torch.Tensor:
         """The context vectors (B, W) of `num_points` points from (point, neighbour) pairs: `pairs` (P, Fc)
         differences to the point, `owner` (P,) the point each pair belongs to (points without a pair get 0).
 
         The max over draws is the max over the distinct neighbours drawn, so giving each neighbour once
         yields `pool_context` of the draws with repeats, at the cost of the distinct ones only."""
-        lin1, relu1, lin2 = self.context_mlp[0], self.context_mlp[1], self.context_mlp[2]
+        lin1, relu1, lin2 = self.branch(wide)[0], self.branch(wide)[1], self.branch(wide)[2]
         h = lin2(relu1(lin1(pairs)))
         pooled = torch.full((num_points, h.shape[1]), -torch.inf, dtype=h.dtype)
         pooled.scatter_reduce_(0, owner.unsqueeze(1).expand_as(h), h, reduce="amax", include_self=True)
         return torch.relu(pooled)  # relu(-inf) = 0 for points without context, as in `pool_context`
 
     def forward(
-        self, point: torch.Tensor, context: torch.Tensor | None = None, mask: torch.Tensor | None = None
+        self,
+        point: torch.Tensor,
+        context: torch.Tensor | None = None,
+        mask: torch.Tensor | None = None,
+        wide: torch.Tensor | None = None,
+        wide_mask: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """point (B, Fp); context (B, M, Fc) differences to the point; mask (B, M) True where a neighbour exists.
-        Returns unit embeddings (B, E) and class logits (B, C)."""
+        """point (B, Fp); context (B, M, Fc) differences to the point; mask (B, M) True where a neighbour exists;
+        wide (B, Mw, 3) and wide_mask (B, Mw) the wider context. Returns unit embeddings (B, E), logits (B, C)."""
         pooled = None
         if self.use_context:
             assert context is not None
             pooled = self.pool_context(context, mask)
+        if self.use_wide:
+            assert wide is not None and pooled is not None
+            pooled = torch.cat([pooled, self.pool_context(wide, wide_mask, wide=True)], dim=1)
         return self.head(point, pooled)
 
     def head(self, point: torch.Tensor, pooled: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -139,8 +157,14 @@ def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, Ne
         raise InputError(f"weights header does not match this version ({exc}); {REBUILD_HINT}", path) from None
     if kind is not None and cfg.kind != kind:
         raise InputError(f"weights are for {cfg.kind!r}, expected {kind!r}; {REBUILD_HINT}", path)
-    known = LAYOUTS if cfg.kind == "mcpnet" else LAYOUTS[1:]  # geometry comes from the context: MCPNet only
-    if cfg.features not in known or cfg.context_features != CONTEXT_FEATURES or cfg.point_dim != len(cfg.features):
+    known = LAYOUTS.get(cfg.kind, ())
+    wide_ok = (cfg.coarse_points > 0) == any(f in cfg.features for f in COARSE_GEOMETRY_FEATURES)
+    if (
+        cfg.features not in known
+        or cfg.context_features != CONTEXT_FEATURES
+        or cfg.point_dim != len(cfg.features)
+        or not wide_ok
+    ):
         raise InputError(
             f"weights use feature layout {list(cfg.features)}, this version runs "
             f"{' or '.join(str(list(k)) for k in known)}; {REBUILD_HINT}",
@@ -199,19 +223,60 @@ def geometry_features(offsets: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def with_geometry(point: np.ndarray, context: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Point features (K, 7) joined by the geometry features of their context (K, M, >=3) -> (K, 12)."""
-    return np.concatenate([point, geometry_features(context[..., 0:3], mask)], axis=1)
+def wide_geometry_features(offsets: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(K, 7) float32: `geometry_features` of the wider context, then the highest and lowest neighbour relative
+    to the point (metres; zero without neighbours)."""
+    out = np.zeros((len(offsets), len(COARSE_GEOMETRY_FEATURES)), np.float32)
+    out[:, :5] = geometry_features(offsets, mask)
+    dz = offsets[..., 2]
+    has = mask.any(axis=1)
+    out[has, 5] = np.where(mask, dz, -np.inf).max(axis=1)[has]
+    out[has, 6] = np.where(mask, dz, np.inf).min(axis=1)[has]
+    return out
 
 
-def with_geometry_of_rows(
-    point: np.ndarray, positions: np.ndarray, rows: np.ndarray, ctx_rows: np.ndarray
+def point_inputs(
+    cfg: NetConfig,
+    base: np.ndarray,
+    offsets: np.ndarray | None = None,
+    mask: np.ndarray | None = None,
+    wide_offsets: np.ndarray | None = None,
+    wide_mask: np.ndarray | None = None,
 ) -> np.ndarray:
-    """`with_geometry` from map rows (K,) and their drawn context rows (K, M, -1 where none), repeats kept as
-    in training."""
+    """The network's point features (K, len(cfg.features)) in the weights' layout, from the base features
+    (K, 7) of `point_features` and the offsets (K, M, >=3) and masks of the context and the wider context."""
+    cols = dict(zip(POINT_FEATURES, base.T, strict=True))
+    if any(f in cfg.features for f in GEOMETRY_FEATURES):
+        assert offsets is not None and mask is not None
+        cols.update(zip(GEOMETRY_FEATURES, geometry_features(offsets[..., 0:3], mask).T, strict=True))
+    if any(f in cfg.features for f in COARSE_GEOMETRY_FEATURES):
+        assert wide_offsets is not None and wide_mask is not None
+        wide = wide_geometry_features(wide_offsets[..., 0:3], wide_mask)
+        cols.update(zip(COARSE_GEOMETRY_FEATURES, wide.T, strict=True))
+    return np.ascontiguousarray(np.stack([cols[f] for f in cfg.features], axis=1), dtype=np.float32)
+
+
+def row_offsets(positions: np.ndarray, rows: np.ndarray, ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets (K, M, 3) float32 of drawn context rows (K, M, -1 where none) to map rows (K,), and their mask."""
     mask = ctx_rows >= 0
     safe = np.where(mask, ctx_rows, rows[:, None])
-    return with_geometry(point, positions[safe] - positions[rows][:, None, :], mask)
+    return (positions[safe] - positions[rows][:, None, :]).astype(np.float32), mask
+
+
+def point_inputs_of_rows(
+    cfg: NetConfig,
+    base: np.ndarray,
+    positions: np.ndarray,
+    rows: np.ndarray,
+    ctx_rows: np.ndarray,
+    wide_rows: np.ndarray | None,
+) -> np.ndarray:
+    """`point_inputs` from map rows (K,) and their drawn context rows (K, M) and wider context rows (K, Mw)."""
+    if not cfg.geometry:
+        return point_inputs(cfg, base)
+    offsets, mask = row_offsets(positions, rows, ctx_rows)
+    wide = row_offsets(positions, rows, wide_rows) if wide_rows is not None else (None, None)
+    return point_inputs(cfg, base, offsets, mask, *wide)
 
 
 def context_features(

@@ -1,10 +1,11 @@
 """`aftershock train mcpnet`: MCPNet and its baselines from simulated missions, seeded, on a CPU.
 
-Missions of both scene families are staged the way inference sees them: each scan is placed in the world
-(with the simulator's true pose: registration noise is left out of training), cut to the labelling range,
-inserted in a voxel map, and every voxel it opens becomes a training point whose context is drawn from the
-map built so far. The same staged missions train the network without context and the PointNet baseline
-(single scans, the scans of the last 0.1 s, the scans within 0.5 m). Held-out seeds are never trained on.
+Missions are staged the way inference sees them: each scan is placed in the world (with the simulator's true
+pose: registration noise is left out of training), cut to the labelling range, inserted in a voxel map, and
+every voxel it opens becomes a training point whose context (and wider context) is drawn from the map built so
+far. MCPNet learns from randomised missions of the training generators (#12); the network without context and
+the PointNet baseline (single scans, the scans of the last 0.1 s, the scans within 0.5 m) from plain missions of
+both families, as before #12. Held-out seeds and the held-out generator are never trained on.
 """
 
 from __future__ import annotations
@@ -26,10 +27,11 @@ from aftershock.models.mcpnet import (
     context_draws,
     num_parameters,
     point_features,
+    point_inputs,
+    row_offsets,
     save_weights,
-    with_geometry,
 )
-from aftershock.models.netconfig import CONTEXT_DIM, GEOMETRY_FEATURES, POINT_DIM, POINT_FEATURES, NetConfig
+from aftershock.models.netconfig import CONTEXT_DIM, POINT_DIM, TRANSFER_FEATURES, NetConfig
 from aftershock.models.pointnet import PointNet
 from aftershock.models.weights_file import WEIGHTS_DIR
 from aftershock.pipeline.classes import UNLABELLED
@@ -53,15 +55,16 @@ POINTS_PER_INSTANCE: Final = 16
 MARGIN: Final = 1.0
 UNIFORM_POINTS: Final = 128  # per batch, drawn over all points for the class loss only
 LEARNING_RATE: Final = 1e-3
-COLOR_DROP: Final = 0.3  # share of training points shown without colour (the colour-free mode)
+COLOR_DROP: Final = 0.3  # the baselines: share of training points (PointNet: clouds) shown without colour
 # MCPNet since #12: trained to transfer. Randomised missions of the training generators (palettes, robots,
-# mounts, sensors, conditions), geometry features, and colour dropped for half the points, so that the
-# colour-free mode is learnt as much as the colour one. The held-out generator is never staged.
-TRANSFER_SEEDS: Final[tuple[int, ...]] = split.TRAIN_SEEDS[:4]
+# mounts, sensors, conditions), from scratch, colour dropped for half of the missions (a robot without a camera
+# has no colour for a whole log), so that the colour-free mode is learnt as much as the colour one. The
+# held-out generator is never staged.
 TRANSFER_SCANS: Final = 100
 TRANSFER_COLOR_DROP: Final = 0.5
-TRANSFER_EPOCHS: Final = 1  # fine-tuning the families' MCPNet (see `widen`)
-TRANSFER_LEARNING_RATE: Final = LEARNING_RATE / 3
+TRANSFER_EPOCHS: Final = 4
+CLASS_WEIGHT_POWER: Final = 0.0
+COARSE_POINTS: Final = 32  # draws of the wider context (3 x 3 x 3 cells of 0.5 m)
 TRANSFER_SENSORS: Final[tuple[str, ...]] = ("vlp16", "vlp16", "vlp32c", "os1-32")
 TRANSFER_ROBOTS: Final[tuple[str, ...]] = ("legged", "wheeled", "tracked")
 POINTNET_MAX_POINTS: Final = 1024
@@ -88,6 +91,7 @@ class Mission:
     instances: np.ndarray  # (R,) int64 true instance (0 = none)
     rows: np.ndarray  # (S,) int64 map row of every training point (a new voxel)
     context: np.ndarray  # (S, M) int64 context rows, -1 where none
+    wide: np.ndarray  # (S, Mw) int64 rows of the wider context, -1 where none (Mw = 0 without one)
     sample_scan: np.ndarray  # (S,) int64 scan index of every training point
     origins: np.ndarray  # (T, 3) sensor position per scan
     floors: np.ndarray  # (T,) floor height per scan
@@ -102,7 +106,7 @@ def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
     Every point is placed with the true pose at its own firing time (an exact deskew), where inference
     has KISS-ICP's estimate instead."""
     vmap = VoxelMap(cfg.voxel_m)
-    rows, contexts, sample_scan, origins, floors, stamps, scan_rows, new_rows = [], [], [], [], [], [], [], []
+    rows, contexts, wides, sample_scan, origins, floors, stamps, scan_rows, new_rows = ([] for _ in range(9))
     for t, scan in enumerate(mission):
         assert scan.class_ids is not None and scan.instance_ids is not None and scan.times is not None
         poses = mission.trajectory.poses(mission.sweep_start_s(t) + scan.times)  # (N, 4, 4)
@@ -113,8 +117,13 @@ def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
         new, point_rows = vmap.insert(world[keep], colors, t, scan.class_ids[keep], scan.instance_ids[keep])
         draws = context_draws(vmap.keys[new], cfg.context_points)
         ctx = vmap.context_rows(vmap.positions[new], cfg.context_cell_m, cfg.context_points, uniform=draws)
+        wide = np.zeros((len(new), 0), np.int64)
+        if cfg.coarse_points:  # drawn as the labeller draws it (MCPNetLabeller.wide_context_rows)
+            draws = context_draws(vmap.keys[new], cfg.coarse_points)
+            wide = vmap.context_rows(vmap.positions[new], cfg.coarse_cell_m, cfg.coarse_points, uniform=draws)
         rows.append(new.astype(np.int64))
         contexts.append(ctx.astype(np.int64))
+        wides.append(wide.astype(np.int64))
         sample_scan.append(np.full(len(new), t, np.int64))
         origins.append(end[:3, 3].copy())
         floors.append(floor_height(world))
@@ -129,6 +138,7 @@ def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
         instances=vmap.true_instance_ids.astype(np.int64),
         rows=np.concatenate(rows) if rows else np.zeros(0, np.int64),
         context=np.concatenate(contexts) if contexts else np.zeros((0, m), np.int64),
+        wide=np.concatenate(wides) if wides else np.zeros((0, cfg.coarse_points), np.int64),
         sample_scan=np.concatenate(sample_scan) if sample_scan else np.zeros(0, np.int64),
         origins=np.array(origins).reshape(-1, 3),
         floors=np.array(floors),
@@ -176,10 +186,15 @@ class Pool:
         self.context = np.concatenate(
             [np.where(m.context >= 0, m.context + o, -1) for m, o in zip(missions, offsets, strict=False)]
         )
+        self.wide = np.concatenate(
+            [np.where(m.wide >= 0, m.wide + o, -1) for m, o in zip(missions, offsets, strict=False)]
+        )
         self.origin = np.concatenate([m.origins[m.sample_scan] for m in missions])
         self.floor = np.concatenate([m.floors[m.sample_scan] for m in missions])
+        self.mission = np.concatenate([np.full(len(m.rows), i, np.int64) for i, m in enumerate(missions)])
+        self.num_missions = len(missions)
         known = self.classes[self.rows] != UNLABELLED
-        for name in ("rows", "context", "origin", "floor"):
+        for name in ("rows", "context", "wide", "origin", "floor", "mission"):
             setattr(self, name, getattr(self, name)[known])
         self.sample_class = self.classes[self.rows]
         self.sample_instance = self.instances[self.rows]
@@ -197,36 +212,42 @@ class Pool:
         idx: np.ndarray,
         rng: np.random.Generator,
         augment: bool,
-        geometry: bool = False,
+        cfg: NetConfig,
         color_drop: float = COLOR_DROP,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Point features (B, 7, or 12 with `geometry`), context (B, M, 6) and mask (B, M) of samples `idx`."""
+        per_mission: bool = False,
+    ) -> tuple[np.ndarray, ...]:
+        """Point features (B, len(cfg.features)), context (B, M, 6), mask (B, M), wider context (B, Mw, 3) and
+        its mask (B, Mw) of samples `idx`. With `augment`: a random turn about z per sample, and colour dropped
+        for a share `color_drop` of the samples, or of the missions with `per_mission` (a robot without a camera
+        has no colour for a whole log)."""
         rows = self.rows[idx]
         pos = self.positions[rows]
-        pf = np.zeros((len(idx), POINT_DIM), np.float32)
-        pf[:, 0:2] = pos[:, 0:2] - self.origin[idx, 0:2]
-        pf[:, 2] = pos[:, 2] - self.floor[idx]
-        pf[:, 3:6] = self.colors[rows] - 0.5
-        pf[:, 6] = 1.0
+        base = np.zeros((len(idx), POINT_DIM), np.float32)
+        base[:, 0:2] = pos[:, 0:2] - self.origin[idx, 0:2]
+        base[:, 2] = pos[:, 2] - self.floor[idx]
+        base[:, 3:6] = self.colors[rows] - 0.5
+        base[:, 6] = 1.0
         ctx_rows = self.context[idx]
         mask = ctx_rows >= 0
         safe = np.where(mask, ctx_rows, rows[:, None])
         ctx = np.zeros((*ctx_rows.shape, CONTEXT_DIM), np.float32)
         ctx[..., 0:3] = self.positions[safe] - pos[:, None, :]
         ctx[..., 3:6] = self.colors[safe] - self.colors[rows][:, None, :]
-        if geometry:  # local shape, from the same context (turning about z changes none of it)
-            pf = with_geometry(pf, ctx, mask)
+        wide, wide_mask = row_offsets(self.positions, rows, self.wide[idx])
         if augment:
             angle = rng.uniform(0, 2 * np.pi, len(idx)).astype(np.float32)
             c, s = np.cos(angle), np.sin(angle)
-            x, y = pf[:, 0].copy(), pf[:, 1].copy()
-            pf[:, 0], pf[:, 1] = c * x - s * y, s * x + c * y
-            x, y = ctx[..., 0].copy(), ctx[..., 1].copy()
-            ctx[..., 0], ctx[..., 1] = c[:, None] * x - s[:, None] * y, s[:, None] * x + c[:, None] * y
-            drop = rng.random(len(idx)) < color_drop
-            pf[drop, 3:7] = 0.0
+            for arr, cc, ss in ((base, c, s), (ctx, c[:, None], s[:, None]), (wide, c[:, None], s[:, None])):
+                x, y = arr[..., 0].copy(), arr[..., 1].copy()
+                arr[..., 0], arr[..., 1] = cc * x - ss * y, ss * x + cc * y
+            if per_mission:
+                drop = (rng.random(self.num_missions) < color_drop)[self.mission[idx]]
+            else:
+                drop = rng.random(len(idx)) < color_drop
+            base[drop, 3:7] = 0.0
             ctx[drop, :, 3:6] = 0.0
-        return pf, ctx, mask
+        pf = point_inputs(cfg, base, ctx, mask, wide, wide_mask)  # the shape features turn with the offsets
+        return pf, ctx, mask, wide, wide_mask
 
     def instance_batch(self, rng: np.random.Generator) -> np.ndarray:
         """16 instances x 16 points (with replacement where an instance has fewer), as sample indices."""
@@ -265,21 +286,24 @@ def train_mcpnet(
     log: bool = True,
     color_drop: float = COLOR_DROP,
     checkpoint: Callable[[MCPNet, dict], None] | None = None,
-    init: MCPNet | None = None,
     learning_rate: float = LEARNING_RATE,
+    per_mission: bool = False,
+    class_weight_power: float = 0.0,
 ) -> tuple[MCPNet, dict]:
     """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once.
-    `init` starts from a trained network (see `widen`) instead of from random weights."""
+    `class_weight_power` p weights each class's loss by (its share of the points)^-p: 0 sees the classes as the
+    stream does, 0.5 lifts the rare ones (mean IoU counts every class alike)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MCPNet(cfg)
-    if init is not None:
-        model.load_state_dict(widen(init, cfg).state_dict())
     opt = torch.optim.Adam(model.parameters(), lr=learning_rate)
     batch = BATCH_INSTANCES * POINTS_PER_INSTANCE
     steps = max(1, len(pool) // batch)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs * steps, eta_min=learning_rate / 20)
-    ce = nn.CrossEntropyLoss()
+    share = np.bincount(pool.sample_class, minlength=cfg.num_classes) / len(pool)
+    weight = np.where(share > 0, np.maximum(share, 1e-4) ** -class_weight_power, 0.0)
+    weight = weight / (weight * share).sum()  # the mean weight over the points stays 1
+    ce = nn.CrossEntropyLoss(weight=torch.from_numpy(weight.astype(np.float32)))
     use_ctx = cfg.kind == "mcpnet"
     history = []
     start = time.perf_counter()
@@ -289,11 +313,13 @@ def train_mcpnet(
             inst_idx = pool.instance_batch(rng)
             uni_idx = rng.integers(0, len(pool), UNIFORM_POINTS)  # class frequencies as the stream sees them
             idx = np.concatenate([inst_idx, uni_idx])
-            pf, ctx, mask = pool.features(idx, rng, augment=True, geometry=cfg.geometry, color_drop=color_drop)
+            pf, ctx, mask, wide, wide_mask = pool.features(idx, rng, True, cfg, color_drop, per_mission)
             emb, logits = model(
                 torch.from_numpy(pf),
                 torch.from_numpy(ctx) if use_ctx else None,
                 torch.from_numpy(mask) if use_ctx else None,
+                torch.from_numpy(wide) if model.use_wide else None,
+                torch.from_numpy(wide_mask) if model.use_wide else None,
             )
             labels = torch.from_numpy(pool.sample_class[idx])
             inst = torch.from_numpy(pool.sample_instance[inst_idx])
@@ -313,23 +339,6 @@ def train_mcpnet(
             checkpoint(model, {"epoch": epoch + 1, "history": list(history)})
     model.eval()
     return model, {"steps_per_epoch": steps, "history": history, "seconds": round(time.perf_counter() - start, 1)}
-
-
-def widen(trained: MCPNet, cfg: NetConfig) -> MCPNet:
-    """A network of `cfg` (more point features appended) that computes what `trained` computed: the weights
-    of the new inputs start at zero, every other weight is copied."""
-    model = MCPNet(cfg)
-    state = trained.state_dict()
-    new = model.state_dict()
-    for key, value in state.items():
-        if new[key].shape == value.shape:
-            new[key] = value.clone()
-        else:  # the first layer of point_mlp: [context, point features], the added features at the end
-            grown = torch.zeros_like(new[key])
-            grown[:, : value.shape[1]] = value
-            new[key] = grown
-    model.load_state_dict(new)
-    return model
 
 
 def _log_epoch(kind: str, epochs: int, h: dict[str, float], start: float) -> None:
@@ -473,10 +482,11 @@ def stage_uris(uris: Iterable[str], cfg: NetConfig, log: bool = True) -> list[Mi
 KINDS: Final[tuple[str, ...]] = ("mcpnet", "mcpnet-nocontext", "pointnet")
 
 
-def transfer_config() -> NetConfig:
-    """The transfer candidate's configuration (#12): the point features followed by the geometry features."""
-    features = POINT_FEATURES + GEOMETRY_FEATURES
-    return NetConfig(kind="mcpnet", point_dim=len(features), features=features)
+def mcpnet_config() -> NetConfig:
+    """MCPNet as shipped since #12: height, colour and the local shape at two scales, a wider context branch."""
+    return NetConfig(
+        kind="mcpnet", point_dim=len(TRANSFER_FEATURES), features=TRANSFER_FEATURES, coarse_points=COARSE_POINTS
+    )
 
 
 def train(
@@ -486,11 +496,12 @@ def train(
     force: bool = False,
     kinds: tuple[str, ...] = KINDS,
 ) -> dict[str, Any]:
-    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights
-    (the shipped ones: plain missions of both families).
+    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights.
 
+    MCPNet: randomised missions of the training generators (`transfer_uris`), see TRANSFER_*. The baselines
+    keep their recipe from before #12: plain VLP-16 missions of both families, colour dropped per point.
     `out` is the MCPNet weights file (default models/weights/mcpnet.pt); the baselines go beside it.
-    `kinds` limits which networks are trained.
+    `kinds` limits which networks are trained. `epochs` overrides every network's epochs.
     """
     torch.set_num_threads(1)  # on a shared 2-core machine a second intra-op thread mostly waits
     out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet.pt"
@@ -503,100 +514,71 @@ def train(
     for p in paths.values():
         if p.exists() and not force:
             raise OutputError("weights file exists; pass --force to overwrite", p)
-    pointnet_epochs = POINTNET_EPOCHS if epochs is None else epochs
-    epochs = EPOCHS if epochs is None else epochs
     start = time.perf_counter()
-    base = NetConfig()
-    missions = stage_all(TRAIN_SEEDS, TRAIN_SCANS, base)
-    pool = Pool(missions)
-    figures: dict[str, Any] = {
-        "train_seeds": list(TRAIN_SEEDS),
-        "families": list(FAMILIES),
-        "sensor": SENSOR,
-        "scans_per_mission": TRAIN_SCANS,
-        "training_points": len(pool),
-        "epochs": epochs,
-        "pointnet_epochs": pointnet_epochs,
-        "range_m": base.range_m,
-        "seed": seed,
-        "staging_seconds": round(time.perf_counter() - start, 1),
-    }
-    for kind in ("mcpnet", "mcpnet-nocontext"):
-        if kind not in kinds:
-            continue
-        cfg = NetConfig(kind=kind)
-        model, fig = train_mcpnet(pool, cfg, epochs, seed)
+    figures: dict[str, Any] = {"seed": seed}
+    if "mcpnet" in kinds:
+        cfg = mcpnet_config()
+        uris = transfer_uris(TRAIN_SEEDS, TRANSFER_SCANS)
+        pool = Pool(stage_uris(uris, cfg))
+        recipe = {
+            "train_seeds": list(TRAIN_SEEDS),
+            "generators": list(split.TRAIN_GENERATORS),
+            "held_out_generator": split.HELDOUT_GENERATOR,
+            "missions": uris,
+            "scans_per_mission": TRANSFER_SCANS,
+            "color_drop_per_mission": TRANSFER_COLOR_DROP,
+            "class_weight_power": CLASS_WEIGHT_POWER,
+            "training_points": len(pool),
+            "epochs": TRANSFER_EPOCHS if epochs is None else epochs,
+            "range_m": cfg.range_m,
+            "seed": seed,
+            "staging_seconds": round(time.perf_counter() - start, 1),
+        }
+        model, fig = train_mcpnet(
+            pool,
+            cfg,
+            recipe["epochs"],
+            seed,
+            color_drop=TRANSFER_COLOR_DROP,
+            per_mission=True,
+            class_weight_power=CLASS_WEIGHT_POWER,
+            checkpoint=lambda m, f: save_weights(paths["mcpnet"].with_suffix(".partial.pt"), m, cfg, {**recipe, **f}),
+        )
         fig["parameters"] = num_parameters(model)
-        save_weights(paths[kind], model, cfg, {**figures, **fig})
-        figures[kind] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
-    if "pointnet" in kinds:
-        cfg = NetConfig(kind="pointnet")
-        model, fig = train_pointnet(missions, cfg, pointnet_epochs, seed)
-        fig["parameters"] = num_parameters(model)
-        save_weights(paths["pointnet"], model, cfg, {**figures, **fig})
-        figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+        save_weights(paths["mcpnet"], model, cfg, {**recipe, **fig})
+        paths["mcpnet"].with_suffix(".partial.pt").unlink(missing_ok=True)
+        figures["mcpnet"] = recipe | {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+        del pool
+    if {"mcpnet-nocontext", "pointnet"} & set(kinds):
+        t0 = time.perf_counter()
+        base = NetConfig()
+        missions = stage_all(TRAIN_SEEDS, TRAIN_SCANS, base)
+        pool = Pool(missions)
+        recipe = {
+            "train_seeds": list(TRAIN_SEEDS),
+            "families": list(FAMILIES),
+            "sensor": SENSOR,
+            "scans_per_mission": TRAIN_SCANS,
+            "training_points": len(pool),
+            "range_m": base.range_m,
+            "seed": seed,
+            "staging_seconds": round(time.perf_counter() - t0, 1),
+        }
+        if "mcpnet-nocontext" in kinds:
+            cfg = NetConfig(kind="mcpnet-nocontext")
+            model, fig = train_mcpnet(pool, cfg, EPOCHS if epochs is None else epochs, seed)
+            fig["parameters"] = num_parameters(model)
+            save_weights(paths["mcpnet-nocontext"], model, cfg, {**recipe, **fig})
+            figures["mcpnet-nocontext"] = {k: v for k, v in fig.items() if k != "history"} | {
+                "final": fig["history"][-1]
+            }
+        if "pointnet" in kinds:
+            cfg = NetConfig(kind="pointnet")
+            model, fig = train_pointnet(missions, cfg, POINTNET_EPOCHS if epochs is None else epochs, seed)
+            fig["parameters"] = num_parameters(model)
+            save_weights(paths["pointnet"], model, cfg, {**recipe, **fig})
+            figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
     figures["weights"] = {k: str(p) for k, p in paths.items()}
     figures["sizes_bytes"] = {k: p.stat().st_size for k, p in paths.items()}
     figures["total_seconds"] = round(time.perf_counter() - start, 1)
     return figures
-
-
-def train_transfer(
-    out: Path | None = None,
-    seed: int = 0,
-    epochs: int | None = None,
-    force: bool = False,
-    init: Path | None = None,
-) -> dict[str, Any]:
-    """The transfer candidate (#12, not shipped: it lost to the shipped MCPNet on validation, see README):
-    the families' MCPNet (`init`, default the shipped models/weights/mcpnet.pt, which `train` makes) widened
-    by the geometry features and fine-tuned on randomised missions of the training generators, colour dropped
-    for half the points. Writes models/weights/mcpnet_transfer.pt unless `out` says otherwise; run it with
-    `--set label.weights=...`."""
-    from aftershock.models.mcpnet import load_model
-
-    torch.set_num_threads(1)
-    out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet_transfer.pt"
-    if out.exists() and not force:
-        raise OutputError("weights file exists; pass --force to overwrite", out)
-    init = Path(init) if init is not None else WEIGHTS_DIR / "mcpnet.pt"
-    first, first_cfg, _ = load_model(init, kind="mcpnet")
-    epochs = TRANSFER_EPOCHS if epochs is None else epochs
-    start = time.perf_counter()
-    uris = transfer_uris(TRANSFER_SEEDS, TRANSFER_SCANS)
-    pool = Pool(stage_uris(uris, NetConfig()))
-    recipe = {
-        "train_seeds": sorted(set(TRAIN_SEEDS) | set(TRANSFER_SEEDS)),
-        "generators": list(split.TRAIN_GENERATORS),
-        "held_out_generator": split.HELDOUT_GENERATOR,
-        "missions": uris,
-        "scans_per_mission": TRANSFER_SCANS,
-        "color_drop": TRANSFER_COLOR_DROP,
-        "init": init.name,
-        "fine_tune_epochs": epochs,
-        "training_points": len(pool),
-        "range_m": first_cfg.range_m,
-        "seed": seed,
-        "staging_seconds": round(time.perf_counter() - start, 1),
-    }
-    cfg = transfer_config()
-    model, fig = train_mcpnet(
-        pool,
-        cfg,
-        epochs,
-        seed,
-        color_drop=TRANSFER_COLOR_DROP,
-        init=first,
-        learning_rate=TRANSFER_LEARNING_RATE,
-    )
-    fig["parameters"] = num_parameters(model)
-    save_weights(out, model, cfg, {**recipe, **fig})
-    return (
-        recipe
-        | {k: v for k, v in fig.items() if k != "history"}
-        | {
-            "weights": str(out),
-            "size_bytes": out.stat().st_size,
-            "total_seconds": round(time.perf_counter() - start, 1),
-        }
-    )

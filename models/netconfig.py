@@ -17,8 +17,28 @@ CONTEXT_DIM: Final = len(CONTEXT_FEATURES)
 # Local shape of a voxel's neighbourhood, from its context points (what transfers between buildings: how
 # upright, flat, line-like or scattered the surface is, and how far it reaches up and down).
 GEOMETRY_FEATURES: Final[tuple[str, ...]] = ("abs_nz", "planarity", "linearity", "sphericity", "dz_std")
-# The layouts this version can run: MCPNet with geometry features (#12), and the earlier colour-and-position one.
-LAYOUTS: Final[tuple[tuple[str, ...], ...]] = (POINT_FEATURES + GEOMETRY_FEATURES, POINT_FEATURES)
+# The same shape at a wider view (a second, coarser context, #12): 1.5 m reaches past a table top to the floor
+# around it, or up a wall; plus how far the surroundings reach above and below the point.
+COARSE_GEOMETRY_FEATURES: Final[tuple[str, ...]] = (
+    "abs_nz_wide",
+    "planarity_wide",
+    "linearity_wide",
+    "sphericity_wide",
+    "dz_std_wide",
+    "dz_max_wide",
+    "dz_min_wide",
+)
+COARSE_CONTEXT_FEATURES: Final[tuple[str, ...]] = ("dx", "dy", "dz")  # geometry only: colour habits do not transfer
+COARSE_CONTEXT_DIM: Final = len(COARSE_CONTEXT_FEATURES)
+# MCPNet since #12: height, colour, the local shape at two scales (x, y relative to the robot left out: they carry
+# the simulator's paths and room sizes rather than what a point is).
+TRANSFER_FEATURES: Final[tuple[str, ...]] = POINT_FEATURES[2:] + GEOMETRY_FEATURES + COARSE_GEOMETRY_FEATURES
+# The layouts this version runs, per kind of network (the baselines read no context, so no shape either).
+LAYOUTS: Final[dict[str, tuple[tuple[str, ...], ...]]] = {
+    "mcpnet": (TRANSFER_FEATURES, POINT_FEATURES),
+    "mcpnet-nocontext": (POINT_FEATURES,),
+    "pointnet": (POINT_FEATURES,),
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,6 +57,9 @@ class NetConfig:
     range_m: float = 4.0  # horizontal labelling range the network was trained with (see LabelConfig)
     features: tuple[str, ...] = POINT_FEATURES
     context_features: tuple[str, ...] = CONTEXT_FEATURES
+    coarse_points: int = 0  # the wider context's draws (0: none)
+    coarse_cell_m: float = 0.5  # its 3 x 3 x 3 cells: a 1.5 m block
+    coarse_width: int = 64
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -53,5 +76,5 @@ class NetConfig:
 
     @property
     def geometry(self) -> bool:
-        """Whether the point features end with the local geometry features."""
-        return self.features[len(POINT_FEATURES) :] == GEOMETRY_FEATURES
+        """Whether the point features include the local shape from the context."""
+        return any(f in self.features for f in GEOMETRY_FEATURES + COARSE_GEOMETRY_FEATURES)

@@ -20,6 +20,8 @@ from aftershock.models.mcpnet import (
     load_model,
     num_parameters,
     point_features,
+    point_inputs_of_rows,
+    row_offsets,
     save_weights,
 )
 from aftershock.models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
@@ -36,22 +38,24 @@ SIM = "sim://office?seed=950&sensor=vlp16&scans=25"
 MAX_WEIGHTS_BYTES = 5 * 1024 * 1024
 
 
-def _inputs(n: int, seed: int, dim: int = 7) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _inputs(n: int, seed: int, cfg: NetConfig) -> list[torch.Tensor]:
+    """Random point features, context, mask and (with a wider context) the wider context and its mask."""
     g = torch.Generator().manual_seed(seed)
-    mask = torch.rand(n, 50, generator=g) > 0.2
-    return torch.randn(n, dim, generator=g), torch.randn(n, 50, 6, generator=g), mask
+    out = [torch.randn(n, cfg.point_dim, generator=g), torch.randn(n, 50, 6, generator=g)]
+    out.append(torch.rand(n, 50, generator=g) > 0.2)
+    if cfg.coarse_points:
+        out += [torch.randn(n, cfg.coarse_points, 3, generator=g), torch.rand(n, cfg.coarse_points, generator=g) > 0.2]
+    return out
 
 
 @pytest.mark.parametrize("kind", ["mcpnet", "mcpnet-nocontext"])
 def test_a_points_output_does_not_depend_on_its_batch_mates(kind: str) -> None:
     model, cfg, _ = load_model(default_weights(kind), kind=kind)
-    p, c, m = _inputs(1, 0, cfg.point_dim)
-    alone = model(p, c, m)
+    one = _inputs(1, 0, cfg)
+    alone = model(*one)
     for seed in (1, 2):
-        op, oc, om = _inputs(63, seed, cfg.point_dim)
-        emb, logits = model(
-            torch.cat([op[:20], p, op[20:]]), torch.cat([oc[:20], c, oc[20:]]), torch.cat([om[:20], m, om[20:]])
-        )
+        others = _inputs(63, seed, cfg)
+        emb, logits = model(*(torch.cat([o[:20], x, o[20:]]) for x, o in zip(one, others, strict=True)))
         torch.testing.assert_close(emb[20:21], alone[0], atol=1e-5, rtol=1e-5)
         torch.testing.assert_close(logits[20:21], alone[1], atol=1e-4, rtol=1e-5)
 
@@ -99,8 +103,11 @@ def test_distinct_pairs_pool_what_the_draws_pool(color: bool) -> None:
     drawn = {(i, int(j)) for i, row in enumerate(ctx_rows) for j in row if j >= 0}
     assert sorted(zip(owner.tolist(), neighbour.tolist(), strict=True)) == sorted(drawn)
     c, m = context_features(vmap.positions, colors, rows, ctx_rows)
+    wide_rows = labeller.wide_context_rows(vmap, rows)
+    pf = point_inputs_of_rows(labeller.net, pf, vmap.positions, rows, ctx_rows, wide_rows)
+    wide = [] if wide_rows is None else [torch.from_numpy(a) for a in row_offsets(vmap.positions, rows, wide_rows)]
     with torch.inference_mode():
-        e_ref, logits = labeller.model(torch.from_numpy(pf), torch.from_numpy(c), torch.from_numpy(m))
+        e_ref, logits = labeller.model(torch.from_numpy(pf), torch.from_numpy(c), torch.from_numpy(m), *wide)
         p_ref, c_ref = torch.softmax(logits, dim=1).max(dim=1)
     np.testing.assert_array_equal(cls, c_ref.numpy())
     np.testing.assert_allclose(score, p_ref.numpy(), atol=1e-5)

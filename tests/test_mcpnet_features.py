@@ -1,4 +1,4 @@
-"""MCPNet's geometry features (#12) and the recorded feature layout."""
+"""MCPNet's shape features at two scales (#12), the recorded feature layout, and how training drops colour."""
 
 from __future__ import annotations
 
@@ -7,9 +7,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aftershock.models.mcpnet import MCPNet, geometry_features, load_model, save_weights
-from aftershock.models.mcpnet_train import transfer_config
-from aftershock.models.netconfig import GEOMETRY_FEATURES, POINT_FEATURES, NetConfig
+from aftershock.models.mcpnet import (
+    MCPNet,
+    geometry_features,
+    load_model,
+    point_inputs,
+    save_weights,
+    wide_geometry_features,
+)
+from aftershock.models.mcpnet_train import Pool, mcpnet_config, open_uri, stage_mission
+from aftershock.models.netconfig import (
+    COARSE_GEOMETRY_FEATURES,
+    GEOMETRY_FEATURES,
+    POINT_FEATURES,
+    TRANSFER_FEATURES,
+    NetConfig,
+)
 from aftershock.pipeline.errors import InputError
 
 
@@ -44,50 +57,85 @@ def test_geometry_features_tell_floor_wall_pole_and_clutter_apart() -> None:
     assert not geometry_features(offsets, few).any()
 
 
-def test_both_layouts_run_and_others_are_refused(tmp_path: Path) -> None:
-    new = transfer_config()
-    assert new.features == POINT_FEATURES + GEOMETRY_FEATURES and new.geometry and new.point_dim == 12
-    path = tmp_path / "transfer.pt"
-    save_weights(path, MCPNet(new), new, {})
-    _, cfg, _ = load_model(path, kind="mcpnet")
-    assert cfg.geometry
-    old = NetConfig()
-    save_weights(tmp_path / "old.pt", MCPNet(old), old, {})
-    assert not load_model(tmp_path / "old.pt")[1].geometry
-    # a PointNet cannot read geometry (it has no context to compute it from)
-    odd = NetConfig(kind="pointnet", point_dim=12, features=new.features)
-    from aftershock.models.pointnet import PointNet
-
-    save_weights(tmp_path / "pn.pt", PointNet(odd), odd, {})
-    with pytest.raises(InputError, match=r"pn\.pt: weights use feature layout .*aftershock train mcpnet"):
-        load_model(tmp_path / "pn.pt")
+def test_the_wider_view_sees_what_lies_above_and_below() -> None:
+    """A table top: the wider context reaches down to the floor 0.7 m below; absent neighbours count for nothing."""
+    rng = np.random.default_rng(1)
+    top = np.c_[rng.uniform(-0.4, 0.4, (20, 2)), np.zeros(20)]
+    floor = np.c_[rng.uniform(-0.7, 0.7, (12, 2)), np.full(12, -0.7)]
+    offsets = np.r_[top, floor][None]
+    mask = np.ones((1, 32), bool)
+    mask[0, -2:] = False
+    offsets[0, -2:, 2] = 5.0  # not drawn: must not count
+    g = wide_geometry_features(offsets, mask)[0]
+    assert g[COARSE_GEOMETRY_FEATURES.index("dz_max_wide")] == pytest.approx(0.0)
+    assert g[COARSE_GEOMETRY_FEATURES.index("dz_min_wide")] == pytest.approx(-0.7)
+    assert not wide_geometry_features(offsets, np.zeros_like(mask)).any()
 
 
-def test_widened_network_starts_where_the_trained_one_was() -> None:
-    import torch
-
-    from aftershock.models.mcpnet_train import widen
-
-    torch.manual_seed(0)
-    old = MCPNet(NetConfig())
-    new = widen(old, transfer_config())
-    p, c = torch.randn(8, 7), torch.randn(8, 50, 6)
-    m = torch.ones(8, 50, dtype=torch.bool)
-    e0, l0 = old(p, c, m)
-    e1, l1 = new(torch.cat([p, torch.randn(8, 5)], dim=1), c, m)
-    torch.testing.assert_close(e0, e1)
-    torch.testing.assert_close(l0, l1)
+def test_point_inputs_follow_the_weights_layout() -> None:
+    rng = np.random.default_rng(2)
+    base = rng.normal(size=(4, len(POINT_FEATURES))).astype(np.float32)
+    offsets, wide = rng.normal(size=(4, 50, 6)), rng.normal(size=(4, 32, 3))
+    mask, wide_mask = np.ones((4, 50), bool), np.ones((4, 32), bool)
+    cfg = mcpnet_config()
+    x = point_inputs(cfg, base, offsets, mask, wide, wide_mask)
+    assert x.shape == (4, len(TRANSFER_FEATURES)) and "x" not in cfg.features and "y" not in cfg.features
+    np.testing.assert_array_equal(x[:, cfg.features.index("z")], base[:, 2])
+    np.testing.assert_allclose(x[:, cfg.features.index("planarity")], geometry_features(offsets[..., :3], mask)[:, 1])
+    np.testing.assert_array_equal(point_inputs(NetConfig(), base), base)  # the baselines' layout
 
 
-def test_weights_with_geometry_run_through_the_stream(tmp_path: Path) -> None:
-    """The labeller reads the layout from the weights file and computes the geometry features itself."""
+def test_the_layout_is_checked_by_name(tmp_path: Path) -> None:
+    cfg = mcpnet_config()
+    path = tmp_path / "mcpnet.pt"
+    save_weights(path, MCPNet(cfg), cfg, {})
+    _, loaded, _ = load_model(path, kind="mcpnet")
+    assert loaded.features == TRANSFER_FEATURES and loaded.coarse_points > 0
+    n = len(TRANSFER_FEATURES)
+    refused = {
+        # the rejected candidate of the session before (7 point + 5 shape features, no wider context)
+        "candidate.pt": NetConfig(point_dim=12, features=POINT_FEATURES + GEOMETRY_FEATURES),
+        # the wider features without the wider context to compute them from
+        "nowide.pt": NetConfig(point_dim=n, features=TRANSFER_FEATURES),
+        # a baseline cannot read shape (it has no context to compute it from)
+        "nocontext.pt": NetConfig(kind="mcpnet-nocontext", point_dim=n, features=TRANSFER_FEATURES),
+    }
+    for name, bad in refused.items():
+        save_weights(tmp_path / name, MCPNet(bad), bad, {})
+        with pytest.raises(InputError, match=rf"{name.replace('.', '[.]')}: .*aftershock train mcpnet --force"):
+            load_model(tmp_path / name)
+
+
+def test_colour_is_dropped_per_mission() -> None:
+    """A robot without a camera has no colour for the whole log: training drops it mission by mission."""
+    cfg = mcpnet_config()
+    missions = [stage_mission(open_uri(f"sim://office?seed={s}&scans=3"), cfg) for s in (5, 6)]
+    pool = Pool(missions)
+    assert pool.wide.shape[1] == cfg.coarse_points and (pool.wide >= 0).mean() > 0.9
+    idx = np.arange(len(pool))
+    has = cfg.features.index("has_color")
+    seen = set()
+    for seed in range(8):
+        pf, ctx, _, wide, _ = pool.features(idx, np.random.default_rng(seed), True, cfg, 0.5, per_mission=True)
+        for m in (0, 1):
+            flags = np.unique(pf[pool.mission == m, has])
+            assert len(flags) == 1  # all of a mission's points with colour, or none
+            seen.add((m, float(flags[0])))
+            if flags[0] == 0.0:
+                assert not ctx[pool.mission == m, :, 3:6].any()
+        assert wide.shape == (len(pool), cfg.coarse_points, 3)
+    assert len(seen) == 4  # both missions were shown both ways
+
+
+def test_weights_with_a_wider_view_run_through_the_stream(tmp_path: Path) -> None:
+    """The labeller reads the layout from the weights file and computes both scales of shape itself."""
     from aftershock import sources
     from aftershock.pipeline.config import load_config
     from aftershock.pipeline.stream import run_stream
     from aftershock.pipeline.types import RunInfo
 
-    path = tmp_path / "geometry.pt"
-    save_weights(path, MCPNet(transfer_config()), transfer_config(), {})
+    path = tmp_path / "wide.pt"
+    save_weights(path, MCPNet(mcpnet_config()), mcpnet_config(), {})
     cfg = load_config(None, [f"label.weights={path}"])
     uri = "sim://wing?seed=3&scans=4&color=0"
     res = run_stream(sources.open(uri), cfg, [], RunInfo(source=uri, source_kind="sim"), lambda _t: None)

@@ -12,13 +12,8 @@ import typer
 
 class Model(StrEnum):
     MCPNET = "mcpnet"
-    MCPNET_TRANSFER = "mcpnet-transfer"  # the #12 candidate, not shipped (see README)
     LRGNET = "lrgnet"
     CRACKEMBED = "crackembed"
-
-
-# model -> (training module, its entry point)
-ENTRY: dict[Model, tuple[str, str]] = {Model.MCPNET_TRANSFER: ("mcpnet", "train_transfer")}
 
 
 def register(app: typer.Typer) -> None:
@@ -32,9 +27,8 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the training figures as JSON."),
     ) -> None:
         """Train a network from simulated missions and write its weights."""
-        name, entry = ENTRY.get(model, (model.value, "train"))
-        module = importlib.import_module(f"aftershock.models.{name}_train")
-        figures = getattr(module, entry)(out=out, seed=seed, epochs=epochs, force=force)
+        module = importlib.import_module(f"aftershock.models.{model.value}_train")
+        figures = module.train(out=out, seed=seed, epochs=epochs, force=force)
         if as_json:
             print(json.dumps(figures, indent=2))
         else:

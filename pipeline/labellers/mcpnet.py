@@ -23,7 +23,7 @@ from aftershock.models.mcpnet import (
     default_weights,
     load_model,
     point_features,
-    with_geometry_of_rows,
+    point_inputs_of_rows,
 )
 from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.config import Config, Environment
@@ -108,11 +108,17 @@ class MCPNetLabeller:
                 if use_ctx:
                     draws = context_draws(vmap.keys[r], self.num)
                     ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, uniform=draws)
-                    if self.net.geometry:  # the weights' layout says whether they read the local shape
-                        pf = with_geometry_of_rows(pf, vmap.positions, r, ctx_rows)
+                    wide_rows = self.wide_context_rows(vmap, r)
+                    # the weights' layout says which features they read (position, colour, local shape)
+                    pf = point_inputs_of_rows(self.net, pf, vmap.positions, r, ctx_rows, wide_rows)
                     owner, neighbour = distinct_pairs(ctx_rows)
                     c, _ = context_features(vmap.positions, colors, r[owner], neighbour[:, None])
                     pooled = self.model.pool_pairs(torch.from_numpy(c[:, 0]), torch.from_numpy(owner), len(r))
+                    if wide_rows is not None:
+                        owner, neighbour = distinct_pairs(wide_rows)
+                        w = (vmap.positions[neighbour] - vmap.positions[r[owner]]).astype(np.float32)
+                        wide = self.model.pool_pairs(torch.from_numpy(w), torch.from_numpy(owner), len(r), wide=True)
+                        pooled = torch.cat([pooled, wide], dim=1)
                 e, logits = self.model.head(torch.from_numpy(pf), pooled)
                 prob = torch.softmax(logits, dim=1)
                 best, cls = prob.max(dim=1)
@@ -120,6 +126,13 @@ class MCPNetLabeller:
             scores[s : s + CHUNK] = best.numpy()
             emb[s : s + CHUNK] = e.numpy()
         return classes, scores, emb
+
+    def wide_context_rows(self, vmap: VoxelMap, rows: np.ndarray) -> np.ndarray | None:
+        """The wider context's rows (K, Mw) of map rows (K,), drawn as the weights were trained (None without)."""
+        if not self.net.coarse_points:
+            return None
+        draws = context_draws(vmap.keys[rows], self.net.coarse_points)
+        return vmap.context_rows(vmap.positions[rows], self.net.coarse_cell_m, self.net.coarse_points, uniform=draws)
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         """Label the voxels this scan opened. Earlier voxels are updated as more of the scene arrives: with
