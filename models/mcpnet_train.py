@@ -62,7 +62,7 @@ COLOR_DROP: Final = 0.3  # the baselines: share of training points (PointNet: cl
 # held-out generator is never staged.
 TRANSFER_SCANS: Final = 100
 TRANSFER_COLOR_DROP: Final = 0.5
-TRANSFER_EPOCHS: Final = 4
+TRANSFER_EPOCHS: Final = 3
 CLASS_WEIGHT_POWER: Final = 0.0
 COARSE_POINTS: Final = 32  # draws of the wider context (3 x 3 x 3 cells of 0.5 m)
 TRANSFER_SENSORS: Final[tuple[str, ...]] = ("vlp16", "vlp16", "vlp32c", "os1-32")
@@ -256,6 +256,17 @@ class Pool:
         return self.inst_order[self.inst_start[pick, None] + offs].ravel()
 
 
+def distinct_draws(ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(point index, draw index) of the first draw of every distinct neighbour in context rows (K, M), -1 left
+    out: pooling these gives what pooling all draws gives, at the cost of the distinct ones."""
+    order = np.argsort(ctx_rows, axis=1, kind="stable")
+    s = np.take_along_axis(ctx_rows, order, axis=1)
+    keep = s >= 0
+    keep[:, 1:] &= s[:, 1:] != s[:, :-1]
+    owner, j = np.nonzero(keep)
+    return owner, order[owner, j]
+
+
 def semihard_triplet_loss(emb: torch.Tensor, labels: torch.Tensor, margin: float = MARGIN) -> torch.Tensor:
     """Semi-hard triplet loss on squared distances of unit embeddings, over every anchor-positive pair:
     the negative is the closest one farther than the positive, else the farthest negative.
@@ -313,14 +324,18 @@ def train_mcpnet(
             inst_idx = pool.instance_batch(rng)
             uni_idx = rng.integers(0, len(pool), UNIFORM_POINTS)  # class frequencies as the stream sees them
             idx = np.concatenate([inst_idx, uni_idx])
-            pf, ctx, mask, wide, wide_mask = pool.features(idx, rng, True, cfg, color_drop, per_mission)
-            emb, logits = model(
-                torch.from_numpy(pf),
-                torch.from_numpy(ctx) if use_ctx else None,
-                torch.from_numpy(mask) if use_ctx else None,
-                torch.from_numpy(wide) if model.use_wide else None,
-                torch.from_numpy(wide_mask) if model.use_wide else None,
-            )
+            pf, ctx, _, wide, _ = pool.features(idx, rng, True, cfg, color_drop, per_mission)
+            pooled = None
+            if use_ctx:  # each distinct neighbour once, as the labeller pools (a third of the draws repeat)
+                owner, at = distinct_draws(pool.context[idx])
+                pooled = model.pool_pairs(torch.from_numpy(ctx[owner, at]), torch.from_numpy(owner), len(idx))
+            if model.use_wide:
+                owner, at = distinct_draws(pool.wide[idx])
+                wide_pooled = model.pool_pairs(
+                    torch.from_numpy(wide[owner, at]), torch.from_numpy(owner), len(idx), True
+                )
+                pooled = torch.cat([pooled, wide_pooled], dim=1)
+            emb, logits = model.head(torch.from_numpy(pf), pooled)
             labels = torch.from_numpy(pool.sample_class[idx])
             inst = torch.from_numpy(pool.sample_instance[inst_idx])
             lt = semihard_triplet_loss(emb[: len(inst_idx)], inst)
