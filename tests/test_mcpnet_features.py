@@ -140,3 +140,14 @@ def test_weights_with_a_wider_view_run_through_the_stream(tmp_path: Path) -> Non
     uri = "sim://wing?seed=3&scans=4&color=0"
     res = run_stream(sources.open(uri), cfg, [], RunInfo(source=uri, source_kind="sim"), lambda _t: None)
     assert len(res.vmap) > 1000 and res.labeller == "mcpnet"
+
+
+def test_training_missions_never_touch_the_held_out_generator_or_seeds() -> None:
+    from aftershock.models import transfer_split as split
+    from aftershock.models.mcpnet_train import TRANSFER_SCANS, transfer_uris
+
+    uris = transfer_uris(split.TRAIN_SEEDS, TRANSFER_SCANS)
+    assert len(uris) == len(split.TRAIN_SEEDS) * len(split.TRAIN_GENERATORS)
+    assert not any(split.HELDOUT_GENERATOR in u for u in uris)
+    seeds = {int(u.split("seed=")[1].split("&")[0]) for u in uris}
+    assert seeds == set(split.TRAIN_SEEDS) and not seeds & set(split.VALIDATION_SEEDS + split.TEST_SEEDS)
