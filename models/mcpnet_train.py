@@ -494,11 +494,12 @@ def stage_uris(uris: Iterable[str], cfg: NetConfig, log: bool = True) -> list[Mi
     return missions
 
 
-KINDS: Final[tuple[str, ...]] = ("mcpnet", "mcpnet-nocontext", "pointnet")
+KINDS: Final[tuple[str, ...]] = ("mcpnet", "mcpnet-nocolor", "mcpnet-nocontext", "pointnet")
 
 
 def mcpnet_config() -> NetConfig:
-    """MCPNet as shipped since #12: height, colour and the local shape at two scales, a wider context branch."""
+    """MCPNet for logs without colour (#12): height, colour (for training with and without it) and the local
+    shape at two scales, a wider context branch; x, y relative to the robot left out."""
     return NetConfig(
         kind="mcpnet", point_dim=len(TRANSFER_FEATURES), features=TRANSFER_FEATURES, coarse_points=COARSE_POINTS
     )
@@ -511,17 +512,19 @@ def train(
     force: bool = False,
     kinds: tuple[str, ...] = KINDS,
 ) -> dict[str, Any]:
-    """Stage the training missions, train MCPNet, MCPNet without context and PointNet, write their weights.
+    """Stage the training missions, train the networks, write their weights.
 
-    MCPNet: randomised missions of the training generators (`transfer_uris`), see TRANSFER_*. The baselines
-    keep their recipe from before #12: plain VLP-16 missions of both families, colour dropped per point.
-    `out` is the MCPNet weights file (default models/weights/mcpnet.pt); the baselines go beside it.
-    `kinds` limits which networks are trained. `epochs` overrides every network's epochs.
+    MCPNet for logs with colour, MCPNet without context and PointNet: plain VLP-16 missions of both families,
+    colour dropped per point. MCPNet for logs without colour (#12): randomised missions of the training
+    generators (`transfer_uris`), see TRANSFER_*. `out` is the MCPNet weights file (default
+    models/weights/mcpnet.pt); the others go beside it. `kinds` limits which networks are trained; `epochs`
+    overrides every network's epochs.
     """
     torch.set_num_threads(1)  # on a shared 2-core machine a second intra-op thread mostly waits
     out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet.pt"
     paths = {
         "mcpnet": out,
+        "mcpnet-nocolor": out.with_name(out.stem + "_nocolor.pt"),
         "mcpnet-nocontext": out.with_name(out.stem + "_nocontext.pt"),
         "pointnet": out.with_name("pointnet.pt") if out.stem == "mcpnet" else out.with_name(out.stem + "_pointnet.pt"),
     }
@@ -531,7 +534,38 @@ def train(
             raise OutputError("weights file exists; pass --force to overwrite", p)
     start = time.perf_counter()
     figures: dict[str, Any] = {"seed": seed}
-    if "mcpnet" in kinds:
+
+    def keep(kind: str, model: nn.Module, cfg: NetConfig, recipe: dict[str, Any], fig: dict[str, Any]) -> None:
+        fig["parameters"] = num_parameters(model)
+        save_weights(paths[kind], model, cfg, {**recipe, **fig})
+        figures[kind] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+
+    if {"mcpnet", "mcpnet-nocontext", "pointnet"} & set(kinds):
+        base = NetConfig()
+        missions = stage_all(TRAIN_SEEDS, TRAIN_SCANS, base)
+        pool = Pool(missions)
+        recipe = {
+            "train_seeds": list(TRAIN_SEEDS),
+            "families": list(FAMILIES),
+            "sensor": SENSOR,
+            "scans_per_mission": TRAIN_SCANS,
+            "training_points": len(pool),
+            "range_m": base.range_m,
+            "seed": seed,
+            "staging_seconds": round(time.perf_counter() - start, 1),
+        }
+        for kind in ("mcpnet", "mcpnet-nocontext"):
+            if kind in kinds:
+                cfg = NetConfig(kind=kind)
+                model, fig = train_mcpnet(pool, cfg, EPOCHS if epochs is None else epochs, seed)
+                keep(kind, model, cfg, recipe, fig)
+        if "pointnet" in kinds:
+            cfg = NetConfig(kind="pointnet")
+            model, fig = train_pointnet(missions, cfg, POINTNET_EPOCHS if epochs is None else epochs, seed)
+            keep("pointnet", model, cfg, recipe, fig)
+        del missions, pool
+    if "mcpnet-nocolor" in kinds:
+        t0 = time.perf_counter()
         cfg = mcpnet_config()
         uris = transfer_uris(TRAIN_SEEDS, TRANSFER_SCANS)
         pool = Pool(stage_uris(uris, cfg))
@@ -547,8 +581,9 @@ def train(
             "epochs": TRANSFER_EPOCHS if epochs is None else epochs,
             "range_m": cfg.range_m,
             "seed": seed,
-            "staging_seconds": round(time.perf_counter() - start, 1),
+            "staging_seconds": round(time.perf_counter() - t0, 1),
         }
+        partial = paths["mcpnet-nocolor"].with_suffix(".partial.pt")
         model, fig = train_mcpnet(
             pool,
             cfg,
@@ -557,42 +592,10 @@ def train(
             color_drop=TRANSFER_COLOR_DROP,
             per_mission=True,
             class_weight_power=CLASS_WEIGHT_POWER,
-            checkpoint=lambda m, f: save_weights(paths["mcpnet"].with_suffix(".partial.pt"), m, cfg, {**recipe, **f}),
+            checkpoint=lambda m, f: save_weights(partial, m, cfg, {**recipe, **f}),
         )
-        fig["parameters"] = num_parameters(model)
-        save_weights(paths["mcpnet"], model, cfg, {**recipe, **fig})
-        paths["mcpnet"].with_suffix(".partial.pt").unlink(missing_ok=True)
-        figures["mcpnet"] = recipe | {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
-        del pool
-    if {"mcpnet-nocontext", "pointnet"} & set(kinds):
-        t0 = time.perf_counter()
-        base = NetConfig()
-        missions = stage_all(TRAIN_SEEDS, TRAIN_SCANS, base)
-        pool = Pool(missions)
-        recipe = {
-            "train_seeds": list(TRAIN_SEEDS),
-            "families": list(FAMILIES),
-            "sensor": SENSOR,
-            "scans_per_mission": TRAIN_SCANS,
-            "training_points": len(pool),
-            "range_m": base.range_m,
-            "seed": seed,
-            "staging_seconds": round(time.perf_counter() - t0, 1),
-        }
-        if "mcpnet-nocontext" in kinds:
-            cfg = NetConfig(kind="mcpnet-nocontext")
-            model, fig = train_mcpnet(pool, cfg, EPOCHS if epochs is None else epochs, seed)
-            fig["parameters"] = num_parameters(model)
-            save_weights(paths["mcpnet-nocontext"], model, cfg, {**recipe, **fig})
-            figures["mcpnet-nocontext"] = {k: v for k, v in fig.items() if k != "history"} | {
-                "final": fig["history"][-1]
-            }
-        if "pointnet" in kinds:
-            cfg = NetConfig(kind="pointnet")
-            model, fig = train_pointnet(missions, cfg, POINTNET_EPOCHS if epochs is None else epochs, seed)
-            fig["parameters"] = num_parameters(model)
-            save_weights(paths["pointnet"], model, cfg, {**recipe, **fig})
-            figures["pointnet"] = {k: v for k, v in fig.items() if k != "history"} | {"final": fig["history"][-1]}
+        keep("mcpnet-nocolor", model, cfg, recipe, fig)
+        partial.unlink(missing_ok=True)
     figures["weights"] = {k: str(p) for k, p in paths.items()}
     figures["sizes_bytes"] = {k: p.stat().st_size for k, p in paths.items()}
     figures["total_seconds"] = round(time.perf_counter() - start, 1)

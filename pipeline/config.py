@@ -81,6 +81,8 @@ class LabelConfig(_Section):
     relabel_old_voxels: bool = False
     instance_vote: bool = True  # MCPNet: an instance's voxels take the class they vote for (confidence-weighted)
     weights: str | None = None  # None = the shipped weights in models/weights
+    # MCPNet on logs without colour (#12): None = the shipped colour-free network, or `weights` when that is set
+    weights_no_color: str | None = None
 
 
 class ClusterConfig(_Section):

@@ -103,11 +103,12 @@ def test_distinct_pairs_pool_what_the_draws_pool(color: bool) -> None:
     drawn = {(i, int(j)) for i, row in enumerate(ctx_rows) for j in row if j >= 0}
     assert sorted(zip(owner.tolist(), neighbour.tolist(), strict=True)) == sorted(drawn)
     c, m = context_features(vmap.positions, colors, rows, ctx_rows)
-    wide_rows = labeller.wide_context_rows(vmap, rows)
-    pf = point_inputs_of_rows(labeller.net, pf, vmap.positions, rows, ctx_rows, wide_rows)
+    model, net = (labeller.model, labeller.net) if color else (labeller.mono_model, labeller.mono_net)
+    wide_rows = labeller.wide_context_rows(vmap, rows, net)
+    pf = point_inputs_of_rows(net, pf, vmap.positions, rows, ctx_rows, wide_rows)
     wide = [] if wide_rows is None else [torch.from_numpy(a) for a in row_offsets(vmap.positions, rows, wide_rows)]
     with torch.inference_mode():
-        e_ref, logits = labeller.model(torch.from_numpy(pf), torch.from_numpy(c), torch.from_numpy(m), *wide)
+        e_ref, logits = model(torch.from_numpy(pf), torch.from_numpy(c), torch.from_numpy(m), *wide)
         p_ref, c_ref = torch.softmax(logits, dim=1).max(dim=1)
     np.testing.assert_array_equal(cls, c_ref.numpy())
     np.testing.assert_allclose(score, p_ref.numpy(), atol=1e-5)

@@ -151,3 +151,29 @@ def test_training_missions_never_touch_the_held_out_generator_or_seeds() -> None
     assert not any(split.HELDOUT_GENERATOR in u for u in uris)
     seeds = {int(u.split("seed=")[1].split("&")[0]) for u in uris}
     assert seeds == set(split.TRAIN_SEEDS) and not seeds & set(split.VALIDATION_SEEDS + split.TEST_SEEDS)
+
+
+def test_logs_without_colour_get_the_colour_free_network(tmp_path: Path) -> None:
+    """The shipped colour-free network: the layout with shape at two scales, trained on the training generators
+    only; the labeller runs it on logs without colour, and a weights file named alone serves both kinds of log."""
+    from aftershock.models.mcpnet import default_weights
+    from aftershock.models.transfer_split import HELDOUT_GENERATOR, TRAIN_SEEDS
+    from aftershock.pipeline.config import load_config
+    from aftershock.pipeline.labellers.mcpnet import NO_COLOR, MCPNetLabeller
+
+    path = default_weights(NO_COLOR)
+    assert path.name == "mcpnet_nocolor.pt" and path.stat().st_size < 5 * 1024 * 1024
+    _, cfg, figures = load_model(path, kind="mcpnet")
+    assert cfg.features == TRANSFER_FEATURES and cfg.coarse_points > 0
+    assert set(figures["train_seeds"]) <= set(TRAIN_SEEDS) and HELDOUT_GENERATOR not in figures["generators"]
+    assert not any(HELDOUT_GENERATOR in u for u in figures["missions"])
+    shipped = MCPNetLabeller(load_config(None, []))
+    assert shipped.mono_weights == path and shipped.mono_net.features == TRANSFER_FEATURES
+    assert shipped.net.features == POINT_FEATURES  # logs with colour: the families' network
+    one = MCPNetLabeller(load_config(None, [f"label.weights={path}"]), weights=path)
+    assert one.mono_weights == path and one.net.features == TRANSFER_FEATURES
+    other = tmp_path / "narrow.pt"
+    narrow = NetConfig(embed_dim=8)
+    save_weights(other, MCPNet(narrow), narrow, {})
+    with pytest.raises(InputError, match=r"narrow\.pt: embeds in 8 dimensions"):
+        MCPNetLabeller(load_config(None, []), weights_no_color=other)

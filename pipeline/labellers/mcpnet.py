@@ -27,11 +27,13 @@ from aftershock.models.mcpnet import (
 )
 from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.config import Config, Environment
+from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.types import Frame, LabelledCloud
 from aftershock.pipeline.voxel_map import VoxelMap
 
 NAME: Final = "mcpnet"
 NO_CONTEXT: Final = "mcpnet-nocontext"
+NO_COLOR: Final = "mcpnet-nocolor"  # the colour-free network's weights: models/weights/mcpnet_nocolor.pt
 CHUNK: Final = 4096  # voxels per forward pass; bounds memory at about 4096 x 50 x 200 floats
 FLOOR_PERCENTILE: Final = 1.0
 RELABEL_PER_NEW: Final = 4  # with relabelling on: at most this many older voxels re-classed per new voxel
@@ -60,10 +62,27 @@ class MCPNetLabeller:
 
     name: str = NAME
 
-    def __init__(self, cfg: Config, weights: str | Path | None = None, kind: str = "mcpnet") -> None:
+    def __init__(
+        self,
+        cfg: Config,
+        weights: str | Path | None = None,
+        kind: str = "mcpnet",
+        weights_no_color: str | Path | None = None,
+    ) -> None:
         self.name = kind
         path = Path(weights or default_weights(kind))
         self.model, self.net, self.figures = load_model(path, kind=kind)
+        # Logs without colour get a network of their own (#12): trained on randomised buildings, colour dropped
+        # per mission. A weights file named alone serves both.
+        mono = weights_no_color or (default_weights(NO_COLOR) if kind == NAME and weights is None else None)
+        self.mono_weights = Path(mono) if mono else path
+        self.mono_model, self.mono_net = (self.model, self.net)
+        if mono:
+            self.mono_model, self.mono_net, _ = load_model(mono, kind=kind)
+            if self.mono_net.embed_dim != self.net.embed_dim:
+                raise InputError(
+                    f"embeds in {self.mono_net.embed_dim} dimensions, {path.name} in {self.net.embed_dim}", mono
+                )
         # Batches of a few dozen voxels: a second intra-op thread only waits (10-20x slower on a busy machine).
         torch.set_num_threads(1)
         self.weights = path
@@ -92,13 +111,14 @@ class MCPNetLabeller:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Class ids (K,) uint16, scores (K,) float32 and embeddings (K, E) float32 of map rows, seen from
         the robot at `origin` ((3,), or (K, 3) one per row)."""
+        model, net = (self.model, self.net) if use_color else (self.mono_model, self.mono_net)
         rows = np.asarray(rows, dtype=np.int64)
         k = len(rows)
         classes = np.zeros(k, np.uint16)
         scores = np.zeros(k, np.float32)
         emb = np.zeros((k, self.embedding_dim), np.float32)
         colors = vmap.colors if use_color else None
-        use_ctx = self.net.kind == "mcpnet"
+        use_ctx = net.kind == "mcpnet"
         for s in range(0, k, CHUNK):
             r = rows[s : s + CHUNK]
             o = origin[s : s + CHUNK] if origin.ndim == 2 else origin
@@ -108,18 +128,18 @@ class MCPNetLabeller:
                 if use_ctx:
                     draws = context_draws(vmap.keys[r], self.num)
                     ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, uniform=draws)
-                    wide_rows = self.wide_context_rows(vmap, r)
+                    wide_rows = self.wide_context_rows(vmap, r, net)
                     # the weights' layout says which features they read (position, colour, local shape)
-                    pf = point_inputs_of_rows(self.net, pf, vmap.positions, r, ctx_rows, wide_rows)
+                    pf = point_inputs_of_rows(net, pf, vmap.positions, r, ctx_rows, wide_rows)
                     owner, neighbour = distinct_pairs(ctx_rows)
                     c, _ = context_features(vmap.positions, colors, r[owner], neighbour[:, None])
-                    pooled = self.model.pool_pairs(torch.from_numpy(c[:, 0]), torch.from_numpy(owner), len(r))
+                    pooled = model.pool_pairs(torch.from_numpy(c[:, 0]), torch.from_numpy(owner), len(r))
                     if wide_rows is not None:
                         owner, neighbour = distinct_pairs(wide_rows)
                         w = (vmap.positions[neighbour] - vmap.positions[r[owner]]).astype(np.float32)
-                        wide = self.model.pool_pairs(torch.from_numpy(w), torch.from_numpy(owner), len(r), wide=True)
+                        wide = model.pool_pairs(torch.from_numpy(w), torch.from_numpy(owner), len(r), wide=True)
                         pooled = torch.cat([pooled, wide], dim=1)
-                e, logits = self.model.head(torch.from_numpy(pf), pooled)
+                e, logits = model.head(torch.from_numpy(pf), pooled)
                 prob = torch.softmax(logits, dim=1)
                 best, cls = prob.max(dim=1)
             classes[s : s + CHUNK] = cls.numpy().astype(np.uint16)
@@ -127,12 +147,12 @@ class MCPNetLabeller:
             emb[s : s + CHUNK] = e.numpy()
         return classes, scores, emb
 
-    def wide_context_rows(self, vmap: VoxelMap, rows: np.ndarray) -> np.ndarray | None:
-        """The wider context's rows (K, Mw) of map rows (K,), drawn as the weights were trained (None without)."""
-        if not self.net.coarse_points:
+    def wide_context_rows(self, vmap: VoxelMap, rows: np.ndarray, net: NetConfig) -> np.ndarray | None:
+        """The wider context's rows (K, Mw) of map rows (K,), drawn as `net` was trained (None without)."""
+        if not net.coarse_points:
             return None
-        draws = context_draws(vmap.keys[rows], self.net.coarse_points)
-        return vmap.context_rows(vmap.positions[rows], self.net.coarse_cell_m, self.net.coarse_points, uniform=draws)
+        draws = context_draws(vmap.keys[rows], net.coarse_points)
+        return vmap.context_rows(vmap.positions[rows], net.coarse_cell_m, net.coarse_points, uniform=draws)
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         """Label the voxels this scan opened. Earlier voxels are updated as more of the scene arrives: with
@@ -217,5 +237,6 @@ class MCPNetLabeller:
 
 def create(cfg: Config) -> MCPNetLabeller:
     """MCPNet, or the same network without context pooling when `label.labeller` is "mcpnet-nocontext"."""
-    kind = NO_CONTEXT if cfg.label.labeller == NO_CONTEXT else NAME
-    return MCPNetLabeller(cfg, weights=cfg.label.weights if kind == NAME else None, kind=kind)
+    if cfg.label.labeller == NO_CONTEXT:
+        return MCPNetLabeller(cfg, kind=NO_CONTEXT)
+    return MCPNetLabeller(cfg, weights=cfg.label.weights, weights_no_color=cfg.label.weights_no_color)
