@@ -65,6 +65,13 @@ class RegisterConfig(_Section):
     threads: Annotated[int, Field(ge=0)] = 0  # KISS-ICP's threads; 0 = every core (`batch` gives each mission one)
 
 
+class StreamConfig(_Section):
+    # Read and register the next scans on a second thread while this one is labelled, clustered and sent to
+    # the sinks (the results are the same as one stage after the other; a test checks it).
+    overlap: bool = True
+    ahead: Count = 2  # scans read and registered ahead at most (bounds the memory they hold)
+
+
 class MapConfig(_Section):
     voxel_size_m: Positive = 0.1
     context_cell_m: Positive = 0.3  # MCPNet context: 3 x 3 x 3 cells of this size around a point
@@ -259,6 +266,7 @@ class DriftConfig(_Section):
 class Config(_Section):
     source: SourceConfig = SourceConfig()
     registration: RegisterConfig = RegisterConfig()
+    stream: StreamConfig = StreamConfig()
     map: MapConfig = MapConfig()
     label: LabelConfig = LabelConfig()
     cluster: ClusterConfig = ClusterConfig()

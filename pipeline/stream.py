@@ -2,7 +2,10 @@
 
     result = run_stream(sources.open(path), cfg, sinks, RunInfo(source=path, source_kind="mcap"))
 
-Stages are generator functions chained lazily, so one frame at a time is in flight. The accumulated map
+Stages are generator functions chained lazily. With `stream.overlap` (the default) reading and registering
+run on a second thread, at most `stream.ahead` scans ahead, while the main thread labels, clusters and tells
+the sinks (the slow parts of both release the GIL: KISS-ICP, PyTorch, numpy); every sink call still happens
+on the main thread in the same order as without it, so the outputs are the same. The accumulated map
 goes to the sinks every `cfg.rerun.map_every` scans (decided here only) and once at the end. Sinks always
 get `close()`, and after a Ctrl-C also `end()` with what was processed, so their files stay valid; the result then says
 `interrupted` and counts the scans that went through every stage (the one in flight may have reached the
@@ -12,6 +15,7 @@ sinks for its first stages).
 from __future__ import annotations
 
 import logging
+import queue
 import signal
 import sys
 import threading
@@ -19,6 +23,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from time import perf_counter
+from typing import Final
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -109,6 +114,54 @@ def _timed_source(scans: Iterable[Scan]) -> Iterator[Frame]:
         frame = Frame(scan)
         frame.timings_ms["source"] = (perf_counter() - t0) * 1e3
         yield frame
+
+
+_POLL_S: Final = 0.1  # how often a blocked reader thread looks whether the stream has stopped
+
+
+@dataclass(frozen=True, slots=True)
+class _End:
+    """The last item of `_ahead`'s queue: the frames ended, or raised `error`."""
+
+    error: BaseException | None = None
+
+
+def _ahead(frames: Iterator[Frame], depth: int) -> Iterator[Frame]:
+    """`frames` computed on a second thread, at most `depth` ahead of the consumer, in order. An exception
+    there is raised here, in its turn; when the consumer stops (end, error, Ctrl-C, `close()`) the thread
+    stops after the frame it is working on and is joined, so nothing reads the source behind the caller's back."""
+    out: queue.Queue[Frame | _End] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item: Frame | _End) -> bool:
+        while not stop.is_set():
+            try:
+                out.put(item, timeout=_POLL_S)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        try:
+            for frame in frames:
+                if not put(frame):
+                    return
+        except BaseException as exc:  # handed to the consumer, which raises it in its turn
+            put(_End(exc))
+            return
+        put(_End())
+
+    thread = threading.Thread(target=work, name="aftershock-read-register", daemon=True)
+    thread.start()
+    try:
+        while not isinstance(item := out.get(), _End):
+            yield item
+        if item.error is not None:
+            raise item.error
+    finally:
+        stop.set()
+        thread.join()
 
 
 def _tap(frames: Iterable[Frame], sinks: Sequence[Sink], stage: Stage) -> Iterator[Frame]:
@@ -209,8 +262,11 @@ def _run(
     clusterer = InstanceClusterer.from_config(cfg.cluster, labeller.affinity, labeller.embedding_dim)
     all_scans = (s for part in (skipped, [first], it) for s in part)
 
-    frames: Iterator[Frame] = _tap(_timed_source(all_scans), sinks, Stage.RAW)
-    frames = _tap(register_stage(frames, registrar), sinks, Stage.REGISTERED)
+    registered: Iterator[Frame] = register_stage(_timed_source(all_scans), registrar)
+    if cfg.stream.overlap:
+        registered = _ahead(registered, cfg.stream.ahead)
+    # The raw scan goes to the sinks after its registration (which leaves it as it is): all on this thread.
+    frames = _tap(_tap(registered, sinks, Stage.RAW), sinks, Stage.REGISTERED)
     frames = _tap(label_stage(frames, vmap, labeller, labelling_range(cfg, environment)), sinks, Stage.LABELLED)
     frames = _tap(cluster_stage(frames, vmap, clusterer), sinks, Stage.CLUSTERED)
 
@@ -252,6 +308,8 @@ def _run(
             summary.interrupted = True
             output_error = exc
             notice(f"stopped after {summary.scans} scans ({exc}); finishing the other outputs")
+        finally:
+            registered.close()  # no more reading and registering while the outputs are finished
         error: BaseException | None = output_error
         if seqs:
             merges, changed = consolidate(vmap, clusterer, labeller, seqs[-1], summary)
