@@ -569,7 +569,8 @@ def cluster_frame(frame: Frame, vmap: VoxelMap, clusterer: InstanceClusterer) ->
         frame.counts["merges"] = len(merges)
     if frame.labels is not None and frame.keep is not None and frame.keep.any():
         idx = np.flatnonzero(frame.keep)
-        ids = vmap.instance_ids[vmap.lookup_points(frame.world_points[idx])]
+        rows = frame.kept_rows if frame.kept_rows is not None else vmap.lookup_points(frame.world_points[idx])
+        ids = vmap.instance_ids[rows]
         frame.labels.instance_ids[idx] = clusterer.shown_ids(ids)
     frame.counts["instances_opened"] = clusterer.next_id - 1
     return frame

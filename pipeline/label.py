@@ -83,6 +83,7 @@ def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float
         frame.keep = np.zeros(n, bool)
         frame.new_voxel_points = np.zeros(0, np.int64)
         frame.voxel_points = np.zeros(0, np.int64)
+        frame.kept_rows = np.zeros(0, np.int64)
         frame.labels = Labels.empty(n)
         frame.counts.update(kept=0, new_voxels=0, map_voxels=len(vmap))
         return frame
@@ -96,6 +97,7 @@ def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float
     new_rows, rows = vmap.insert(
         frame.world_points[idx], pick(scan.colors), scan.seq, pick(scan.class_ids), pick(scan.instance_ids)
     )
+    frame.kept_rows = rows
     touched, first = np.unique(rows, return_index=True)  # rows are numbered in first-point order
     frame.voxel_points = idx[first]
     frame.new_voxel_points = frame.voxel_points[touched >= first_new]

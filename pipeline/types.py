@@ -117,6 +117,7 @@ class Frame:
     keep: np.ndarray | None = None  # (N,) bool, points kept by the range filter for labelling
     new_voxel_points: np.ndarray | None = None  # indices (into scan points) that opened new map voxels
     voxel_points: np.ndarray | None = None  # indices of the first kept point in each map voxel the scan fell in
+    kept_rows: np.ndarray | None = None  # the map row of each kept point (in the order of np.flatnonzero(keep))
     labels: Labels | None = None  # for the points of `scan` (unlabelled where not kept)
     merges: list[InstanceMerge] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)

@@ -185,7 +185,7 @@ class MCPNetLabeller:
             self.raw_score[rows_old[better]] = scores[n:][better]
             vmap.class_ids[rows_old[better]] = classes[n:][better]
         if self.vote and frame.keep is not None:
-            seen = vmap.lookup_points(world[frame.keep])
+            seen = frame.kept_rows if frame.kept_rows is not None else vmap.lookup_points(world[frame.keep])
             self.vote_instances(vmap, vmap.instance_ids[seen[seen >= 0]])
 
     def _grow(self, n: int) -> None:
