@@ -151,6 +151,9 @@ class RerunConfig(_Section):
     # Full-resolution per-stage layers of every scan (registered, labelled, instances, embedding): for
     # debugging a scan, about 15x the size of a recording without them.
     debug_layers: bool = False
+    # A saved recording larger than this is rewritten at the end in fewer, larger chunks (a long mission's
+    # opens in Rerun's web viewer in minutes instead of not at all); 0 = every one.
+    compact_above_mb: NonNegative = 64.0
     embeddings: bool = True  # with debug_layers: the MCPNet embedding layer too
 
 

@@ -56,6 +56,7 @@ from aftershock.pipeline.geometry import voxel_downsample
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan, Story
 from aftershock.sinks import rerun_blueprint as L
+from aftershock.sinks.rrd_compact import compact
 
 TRAJECTORY_PIECE: Final = 100  # poses per trajectory strip (each scan re-logs its strip); older strips stay
 DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)
@@ -404,6 +405,11 @@ class RerunSink(Sink):
             self.rec.disconnect()
             raise OutputError(f"the Rerun viewer could not be reached ({exc})", self._viewer_url) from None
         self.rec.disconnect()
+        if self.path is not None and self.path.exists():
+            size = self.path.stat().st_size
+            free = self._free_bytes()
+            if size > self.cfg.compact_above_mb * 1e6 and (free is None or free > size + MIN_FREE_BYTES):
+                compact(self.path)
 
     # ------------------------------------------------------------------------------------------ errors
 

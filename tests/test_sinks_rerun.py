@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rerun as rr
 from fixtures import interruptible
 from rerun.chunk import McapReader, RrdReader
 from rrd_read import read_rrd, rrd_verify
@@ -26,6 +27,7 @@ from aftershock.pipeline.sink import Stage
 from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Story
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks.rerun_sink import EmbeddingColors, RerunSink, log_id_of
+from aftershock.sinks.rrd_compact import compact
 from aftershock.sources.mcap_source import fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
@@ -361,3 +363,63 @@ def test_ctrl_c_leaves_a_readable_recording(velodyne: Path, tmp_path: Path) -> N
     assert "(interrupted)" in rec.texts("log/summary")[0]
     assert rrd_verify(out).returncode == 0
     assert len(RrdReader(out).store()) > 0
+
+
+def _chunks(path: Path) -> int:
+    reader = RrdReader(path)
+    return sum(1 for _ in reader.stream(store=reader.recordings()[0]))
+
+
+def test_a_large_recording_is_compacted_holding_the_same(
+    recorded: tuple[Path, list], velodyne: Path, tmp_path: Path
+) -> None:
+    """Past `rerun.compact_above_mb` (0 here: every one) the finished file is rewritten by `rerun rrd optimize`:
+    the same recording (id, blueprint, every row of every entity on every timeline), valid, nothing left beside."""
+    as_written, _ = recorded
+    path = tmp_path / "compacted.rrd"
+    _run(path, velodyne, raw_in_log=True, map_every=2, compact_above_mb=0)
+    assert rrd_verify(path).returncode == 0
+    a, b = read_rrd(as_written), read_rrd(path)
+    assert (a.application_id, log_id_of(a.recording_id), a.blueprints, a.timelines, a.entities) == (
+        b.application_id,
+        log_id_of(b.recording_id),
+        b.blueprints,
+        b.timelines,
+        b.entities,
+    )
+    for entity in (L.LABELS, *sorted(a.under(L.MAP))):
+        for component in ("Points3D:class_ids", "Points3D:positions"):
+            got = b.times(entity, component, L.SCAN_TIMELINE).tolist()
+            assert a.times(entity, component, L.SCAN_TIMELINE).tolist() == got
+    rows_a = [np.asarray(r) for r in a.rows(L.LABELS, "Points3D:class_ids")]
+    rows_b = [np.asarray(r) for r in b.rows(L.LABELS, "Points3D:class_ids")]
+    assert all(np.array_equal(x, y) for x, y in zip(rows_a, rows_b, strict=True))
+    assert [p.name for p in tmp_path.iterdir()] == ["compacted.rrd"]
+
+
+def test_compacting_turns_many_small_chunks_into_few(tmp_path: Path) -> None:
+    """A chunk per row (as a long mission's per-scan layers and scalars come out) -> a few large chunks."""
+    path = tmp_path / "many.rrd"
+    rec = rr.RecordingStream(
+        "aftershock-test", recording_id="many", batcher_config=rr.ChunkBatcherConfig(flush_num_rows=1)
+    )
+    rec.save(path)
+    rng = np.random.default_rng(0)
+    clouds = [rng.random((50, 3)).astype(np.float32) for _ in range(300)]
+    for seq, cloud in enumerate(clouds):
+        rec.set_time(L.SCAN_TIMELINE, sequence=seq)
+        rec.log("world/scan", rr.Points3D(cloud))
+        rec.log("stats/value", rr.Scalars(float(seq)))
+    rec.flush()
+    rec.disconnect()
+    before = _chunks(path)
+    assert before >= 600
+    assert compact(path)
+    assert _chunks(path) < before / 20
+    got = read_rrd(path)
+    assert got.recording_id == "many"
+    assert all(
+        np.array_equal(np.asarray(r, np.float32), c)
+        for r, c in zip(got.rows("world/scan", "Points3D:positions"), clouds, strict=True)
+    )
+    assert got.times("stats/value", "Scalars:scalars", L.SCAN_TIMELINE).tolist() == list(range(300))
