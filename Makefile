@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-all train screenshot clean
+.PHONY: setup demo test test-faults lint bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -38,6 +38,14 @@ lint: setup
 # Speed and memory of the whole stream (VLP-16 simulated missions with Rerun recording to a file).
 bench: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py
+
+# Its halves: the 300-scan stream against KISS-ICP alone (sequential and overlapped), and the 3,000-scan
+# mission (memory, compacted recording, web viewer picture; needs `pip install -e '.[screenshot]'` and chromium).
+bench-stream: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py -k whole_stream
+
+bench-long: setup
+	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py -k long_mission
 
 # Decoding, simulation and sink throughput.
 bench-io: setup
