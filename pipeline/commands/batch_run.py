@@ -12,8 +12,8 @@ workers listening on 127.0.0.1 only, no dashboard, a small object store (results
 `--address` the driver joins that cluster the same way and keeps at most `--workers` (default: the
 cluster's CPUs) missions in flight. Each mission asks Ray for one CPU and `worker_memory` bytes (so Ray
 never packs more missions onto a node than its memory holds) and aborts with an error if its worker grows
-beyond that bound. Every mission runs single-threaded (KISS-ICP, torch, BLAS), so missions, not threads,
-share the cores.
+beyond that bound. Every mission runs single-threaded (KISS-ICP, torch, BLAS, no reader thread), so missions,
+not threads, share the cores.
 """
 
 from __future__ import annotations
@@ -235,6 +235,7 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         torch.set_num_threads(1)
         cfg = Config.model_validate_json(task.config_json)
         cfg.registration.threads = 1  # one core per mission: missions share the machine, not threads
+        cfg.stream.overlap = False  # ... nor a second thread reading ahead
         row["source_kind"] = sources.kind_of(task.source).value
         progress = ProgressSink(task.name, board, task.memory_limit_bytes)
         outputs = Outputs(save=folder / RECORDING_FILE, export=folder, force=True)  # the folder is being redone
