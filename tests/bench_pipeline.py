@@ -183,14 +183,14 @@ def test_whole_stream_against_kiss_icp_alone(mission: Path, tmp_path: Path) -> N
         f"{ROUNDS} rounds alternating"
     )
     print(f"load average {min(loads):.1f}-{max(loads):.1f} over the runs, on {os.cpu_count()} cores")
-    print(f"{'run':<44}{'wall s':>8}{'scans/s':>9}{'CPU s':>7}" + "".join(f"{k + ' ms':>12}" for k in STAGES))
+    print(f"{'run':<50}{'wall s':>8}{'scans/s':>9}{'CPU s':>7}" + "".join(f"{k + ' ms':>12}" for k in STAGES))
     for name, label in (
         ("kiss", "KISS-ICP alone (read + register)"),
         ("sequential", f"whole stream, one stage after the other ({whole['labeller']})"),
         ("whole", f"whole stream ({whole['labeller']}, Rerun file)"),
     ):
         cells = "".join(f"{got[name]['cpu_ms'].get(k, 0.0):>12.1f}" for k in STAGES)
-        print(f"{label:<44}{wall[name]:>8.1f}{SCANS / wall[name]:>9.1f}{got[name]['cpu_s']:>7.1f}" + cells)
+        print(f"{label:<50}{wall[name]:>8.1f}{SCANS / wall[name]:>9.1f}{got[name]['cpu_s']:>7.1f}" + cells)
     print("wall s of each round: " + ", ".join(f"{n} {' / '.join(f'{w:.1f}' for w in ws)}" for n, ws in walls.items()))
     print("(stage columns: CPU ms per scan spent inside each stage, on the thread it runs on)")
     print(
