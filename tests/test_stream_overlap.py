@@ -5,6 +5,9 @@ arrive in their turn, and the reader thread is gone when the run returns."""
 from __future__ import annotations
 
 import hashlib
+import os
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,6 +24,7 @@ from aftershock.sinks.files import FileExportSink
 
 MISSION = "sim://disaster?seed=5&sensor=vlp16&scans=10"
 READER = "aftershock-read-register"
+TESTS = Path(__file__).resolve().parent
 
 
 def _digest(*arrays: np.ndarray | None) -> str:
@@ -53,7 +57,8 @@ class CallLog(Sink):
 
 
 def _run(overlap: bool, export: Path, scans: Iterator[Scan] | None = None) -> tuple[StreamResult, CallLog]:
-    # One KISS-ICP thread: with several, its parallel sums add up in an order that varies from run to run.
+    # One KISS-ICP thread: with several, its parallel sums add up in an order that varies from run to run
+    # (the first registrar of a process sets it for the whole process: see the byte-for-byte test).
     settings = ["label.labeller=mcpnet", "registration.threads=1", f"stream.overlap={str(overlap).lower()}"]
     cfg = load_config(None, settings)
     log = CallLog()
@@ -63,9 +68,10 @@ def _run(overlap: bool, export: Path, scans: Iterator[Scan] | None = None) -> tu
     return result, log
 
 
-def test_overlapped_run_is_the_sequential_run_byte_for_byte(tmp_path: Path) -> None:
-    seq, seq_log = _run(False, tmp_path / "seq")
-    ovl, ovl_log = _run(True, tmp_path / "ovl")
+def compare_runs(folder: Path) -> None:
+    """The sequential and the overlapped run of MISSION, compared byte for byte (run in a fresh process)."""
+    seq, seq_log = _run(False, folder / "seq")
+    ovl, ovl_log = _run(True, folder / "ovl")
     assert seq.summary.scans == ovl.summary.scans == 10
     for name in ("positions", "class_ids", "scores", "instance_ids", "embeddings"):
         a, b = getattr(seq.vmap, name), getattr(ovl.vmap, name)
@@ -74,8 +80,20 @@ def test_overlapped_run_is_the_sequential_run_byte_for_byte(tmp_path: Path) -> N
     assert seq_log.calls == ovl_log.calls  # every sink call, in the same order, with the same data
     assert ovl_log.threads == {threading.main_thread().name}  # sinks are only ever called on the main thread
     for name in ("map.ply", "poses_tum.txt", "poses_kitti.txt"):
-        assert (tmp_path / "seq" / name).read_bytes() == (tmp_path / "ovl" / name).read_bytes(), name
+        assert (folder / "seq" / name).read_bytes() == (folder / "ovl" / name).read_bytes(), name
     assert not any(t.name == READER for t in threading.enumerate())
+
+
+def test_overlapped_run_is_the_sequential_run_byte_for_byte(tmp_path: Path) -> None:
+    """In a process of its own: KISS-ICP takes its thread count from the first registrar a process makes (a
+    process-wide TBB limit), and only on one thread do its sums come out in the same order every run."""
+    script = (
+        f"import sys; sys.path.insert(0, {str(TESTS)!r}); from pathlib import Path; "
+        f"import test_stream_overlap as t; t.compare_runs(Path({str(tmp_path)!r}))"
+    )
+    env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr[-4000:]
 
 
 def _failing(after: int, error: BaseException) -> Iterator[Scan]:
