@@ -67,8 +67,10 @@ class RegisterConfig(_Section):
 
 class StreamConfig(_Section):
     # Read and register the next scans on a second thread while this one is labelled, clustered and sent to
-    # the sinks (the results are the same as one stage after the other; a test checks it).
-    overlap: bool = True
+    # the sinks (the results are the same as one stage after the other; a test checks it). Off by default:
+    # on this project's 2-core machine, idle, it gained 1.03x (the stages hold Python's GIL most of the time)
+    # and cost 100-170 MB of peak memory (`make bench-stream`, README).
+    overlap: bool = False
     ahead: Count = 2  # scans read and registered ahead at most (bounds the memory they hold)
 
 

@@ -1,4 +1,4 @@
-"""Reading and registering on a second thread (`stream.overlap`, the default) gives the same run as one stage
+"""Reading and registering on a second thread (`stream.overlap`, opt-in) gives the same run as one stage
 after the other: the same map, labels, poses and sink calls, byte for byte; errors and Ctrl-C in the reader
 arrive in their turn, and the reader thread is gone when the run returns."""
 
