@@ -1,6 +1,6 @@
 """LRGNet: a learnable step of region growing.
 
-Two point branches (the region's inliers and its neighbours), each a shared MLP 13→64→64→64→128→512 with a
+Two point branches (the region's inliers and its neighbours), each a shared MLP 16→64→64→64→128→512 with a
 max-pooled global feature; the two global features joined (1024) go back to every point together with the
 point's own 64-wide second-layer feature (1088) into a head 256→128→2: one head says which inliers to remove,
 the other which neighbours to add. No normalisation layers, so a point's output depends only on itself and
@@ -73,7 +73,7 @@ class Head(nn.Module):
 class LRGNet(nn.Module):
     """Inputs (B, I, F) inliers and (B, J, F) neighbours; outputs remove logits (B, I, 2), add logits (B, J, 2)."""
 
-    def __init__(self, in_features: int = 13) -> None:
+    def __init__(self, in_features: int = 16) -> None:
         super().__init__()
         self.in_features = in_features
         self.inlier_branch = Branch(in_features)
@@ -127,7 +127,7 @@ def load_weights(path: str | Path, expected: dict[str, Any]) -> tuple[LRGNet, di
     if wrong:
         detail = ", ".join(f"{k}={a!r} (expected {b!r})" for k, (a, b) in wrong.items())
         raise InputError(f"LRGNet weights were trained for other settings: {detail}; {REBUILD_HINT}", p)
-    net = LRGNet(int(settings.get("features", 13)))
+    net = LRGNet(int(settings.get("features", 16)))
     try:
         net.load_state_dict(blob["state_dict"])
     except (RuntimeError, KeyError) as exc:

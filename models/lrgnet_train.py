@@ -1,13 +1,17 @@
 """Train LRGNet from simulated region growing on the simulator's labelled scenes, seeded, on a CPU.
 
-Training data: from random seeds, regions grow towards the seed's true object while deliberately making
-mistakes (each decision flipped with a probability of 0.2, 0.3 or 0.4 per seed, falling by 0.01 per step), so
-the network sees and learns to undo wrong additions. Every step yields one sample: I inliers and J neighbours
-(sampled with replacement when fewer) with their true remove/add masks. Flips and 90° rotations about z are
-applied per sample at batch time.
+Training data: rooms of the randomised simulator's training generators (`office`, `disaster`, `hall`; `wing`
+stays out, see `models.transfer_split`), each building repainted with one of the simulator's palettes, half the
+rooms without colour (colour features zeroed, exactly as inference does on a cloud without colour), every
+room's points jittered and thinned anew. From random seeds, regions grow towards the seed's true object while
+deliberately making mistakes (each decision flipped with a probability of 0.2, 0.3 or 0.4 per seed, falling by
+0.01 per step), so the network sees and learns to undo wrong additions. Every step yields one sample: I inliers
+and J neighbours (sampled with replacement when fewer) with their true remove/add masks. Flips and 90° rotations
+about z are applied per sample at batch time.
 
-`aftershock train lrgnet` writes three files: `lrgnet.pt` (both families, the default), and `lrgnet_office.pt`,
-`lrgnet_disaster.pt` (one family each, for the cross-family table of `make bench-lrgnet`).
+Validation: whole buildings of the training generators that no training room comes from (`VALIDATION_SEEDS`),
+with and without colour; every setting was chosen there. `aftershock train lrgnet` writes `lrgnet.pt`, with a
+checkpoint after every epoch in the cache.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import itertools
 import logging
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
@@ -25,6 +29,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from aftershock.models import transfer_split as split
 from aftershock.models.lrgnet import LRGNet, num_parameters, save_weights
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.config import LRGNetConfig
@@ -36,34 +41,36 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-FAMILIES: Final = ("office", "disaster")
-# Buildings: training and held-out seeds are disjoint, fixed here so that results are comparable across runs.
-TRAIN_SEEDS: Final = {"office": (101, 102, 103, 104, 105), "disaster": (201, 202, 203, 204, 205)}  # 111 / 73 rooms
-HELDOUT_SEEDS: Final = {"office": (901,), "disaster": (951,)}
+GENERATORS: Final = split.TRAIN_GENERATORS
+# Buildings: training, validation and held-out (test) seeds are disjoint, fixed here so that runs compare.
+TRAIN_SEEDS: Final = {"office": (100, 101, 102), "disaster": (100, 101, 102, 103, 104), "hall": split.TRAIN_SEEDS}
+VALIDATION_SEEDS: Final = {g: split.VALIDATION_SEEDS[:1] for g in GENERATORS}
+HELDOUT_SEEDS: Final = {"office": (901,), "disaster": (951,), "hall": split.TEST_SEEDS[:1]}
 CACHE_VERSION: Final = 1
 RAW_SPACING_M: Final = 0.1  # spacing of the simulator's static cloud (one point per voxel at 0.1 m)
 ROOM_MARGIN_M: Final = 0.3  # a room is cut out with its walls, floor and ceiling
-VAL_ROOMS: Final = 2  # rooms of each training building kept out of training for validation
+COLOUR_FREE_SHARE: Final = 0.5  # of the training rooms, seen without colour
+JITTER_M: Final = 0.01  # per training room: range-like noise up to this sigma ...
+KEEP_FRACTION: Final = (0.7, 1.0)  # ... and this share of its points kept
 MISTAKE_PROBS: Final = (0.2, 0.3, 0.4)
 MISTAKE_DECAY: Final = 0.01
 TRAJECTORY_STEPS: Final = 50  # cap on the steps of one simulated growth (inference grows floors for longer)
 TRAIN_POINTS: Final = 128  # I = J while training (inference pools up to 512): measured better than 256 with
 # twice the samples at the same cost (validation rooms, 750 steps each: ARI 0.73 against 0.62)
 SAMPLES_PER_ROOM: Final = 1000  # cap, so that large rooms do not crowd out the others
+GENERATOR_SAMPLES: Final = 32_000  # cap per generator, so that office's many rooms do not crowd out the hall
 EPOCHS: Final = 2  # each pass with other flips and rotations
 BATCH: Final = 64
 LEARNING_RATE: Final = 1e-3  # peak; linear warm-up, then cosine decay to zero over the run
 WARMUP_STEPS: Final = 30
-# Distinct samples per weights file: 1,800 / 1,700 / 1,400 gradient steps, all three within an hour on one core.
-MAX_SAMPLES: Final = {"office": 57_600, "disaster": 54_400, "all": 44_800}
-VAL_SAMPLES: Final = 1_000
+VAL_SAMPLES: Final = 1_500
 
 
 @dataclass(slots=True)
 class Samples:
     """Steps of simulated growth over a set of scenes, as indices into each scene's voxel features."""
 
-    features: list[np.ndarray]  # per scene (M, 13) float32
+    features: list[np.ndarray]  # per scene (M, F) float32
     scene: np.ndarray  # (S,) int32
     inliers: np.ndarray  # (S, I) int32
     neighbours: np.ndarray  # (S, J) int32
@@ -158,16 +165,18 @@ def simulator_version() -> str:
     import aftershock.sources.simulator as sim
 
     digest = hashlib.sha256()
-    for f in sorted(Path(sim.__file__).parent.glob("*.py")):
+    for f in sorted(Path(sim.__file__).parent.rglob("*.py")):
         digest.update(f.read_bytes())
     return digest.hexdigest()[:10]
 
 
-def building_rooms(family: str, seed: int) -> list[LabelledCloud]:
-    """The simulator's labelled static cloud of one building, cut into its rooms (with their walls, floor and
-    ceiling), as the study's scenes were rooms. The simulator is deterministic, so rooms are cached on disk,
-    keyed by the simulator's source."""
-    path = cache_dir() / f"{family}_{seed}_{RAW_SPACING_M:g}_v{CACHE_VERSION}_{simulator_version()}.npz"
+def building_rooms(generator: str, seed: int, palette: str = "natural") -> list[LabelledCloud]:
+    """The simulator's labelled static cloud of one building, repainted with `palette`, cut into its rooms (with
+    their walls, floor and ceiling), as the study's scenes were rooms. The simulator is deterministic, so rooms
+    are cached on disk, keyed by the simulator's source."""
+    paint = "" if palette == "natural" else f"_{palette}"
+    name = f"{generator}_{seed}{paint}_{RAW_SPACING_M:g}_v{CACHE_VERSION}_{simulator_version()}.npz"
+    path = cache_dir() / name
     if path.is_file():
         z = np.load(path)
         bounds = np.r_[0, np.cumsum(z["sizes"])]
@@ -175,7 +184,10 @@ def building_rooms(family: str, seed: int) -> list[LabelledCloud]:
             LabelledCloud(z["points"][a:b], z["colors"][a:b], None, z["class_ids"][a:b], z["instance_ids"][a:b])
             for a, b in itertools.pairwise(bounds)
         ]
-    rooms = _cut_rooms(family, seed)
+    from aftershock.sources.simulator.generators import generate
+
+    scene = generate(generator, seed, palette)
+    rooms = cut_rooms(scene.sample_static_cloud(RAW_SPACING_M, seed), scene.rooms, scene.floor_z, scene.ceiling_z)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(
@@ -188,14 +200,6 @@ def building_rooms(family: str, seed: int) -> list[LabelledCloud]:
     )
     tmp.replace(path)  # atomic: parallel trainings may build the same building
     return rooms
-
-
-def _cut_rooms(family: str, seed: int) -> list[LabelledCloud]:
-    from aftershock.sources.simulator import build_scene
-
-    scene = build_scene(family, seed)
-    cloud = scene.sample_static_cloud(RAW_SPACING_M, seed)
-    return cut_rooms(cloud, scene.rooms, scene.floor_z, scene.ceiling_z)
 
 
 def cut_rooms(
@@ -211,6 +215,19 @@ def cut_rooms(
         if inside.sum() >= 100:
             out.append(cloud.select(inside))
     return out
+
+
+def without_colour(cloud: LabelledCloud) -> LabelledCloud:
+    """The cloud as a sensor without a camera records it: no colour at all."""
+    return LabelledCloud(cloud.points, None, cloud.intensity, cloud.class_ids, cloud.instance_ids)
+
+
+def room_variant(cloud: LabelledCloud, rng: np.random.Generator) -> LabelledCloud:
+    """A training room as another scan might see it: points jittered and thinned, colour dropped for a share."""
+    keep = rng.random(len(cloud)) < rng.uniform(*KEEP_FRACTION)
+    out = cloud.select(keep)
+    out.points = out.points + rng.normal(0.0, rng.uniform(0.0, JITTER_M), out.points.shape)
+    return without_colour(out) if rng.random() < COLOUR_FREE_SHARE else out
 
 
 def make_samples(
@@ -325,7 +342,14 @@ def evaluate(net: LRGNet, s: Samples) -> dict[str, float]:
     }
 
 
-def fit(train_set: Samples, val_set: Samples, seed: int, epochs: int) -> tuple[LRGNet, dict[str, Any]]:
+def fit(
+    train_set: Samples,
+    val_set: Samples,
+    seed: int,
+    epochs: int,
+    checkpoint: Callable[[LRGNet, int, list[dict[str, Any]]], None] | None = None,
+) -> tuple[LRGNet, dict[str, Any]]:
+    """Adam with warm-up and cosine decay; `checkpoint(net, epoch, history)` after every epoch."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     net = LRGNet()
@@ -352,6 +376,8 @@ def fit(train_set: Samples, val_set: Samples, seed: int, epochs: int) -> tuple[L
         val = evaluate(net, val_set)
         history.append({"epoch": epoch + 1, "train_loss": round(total / max(count, 1), 4), **_round(val)})
         log.info("epoch %d: %s", epoch + 1, history[-1])
+        if checkpoint is not None:
+            checkpoint(net, epoch + 1, history)
     return net, {"epochs": epochs, "train_seconds": round(time.perf_counter() - t0, 1), "history": history}
 
 
@@ -371,87 +397,80 @@ def _cap(s: Samples, limit: int, rng: np.random.Generator) -> Samples:
     return s if len(s) <= limit else s.subset(np.sort(rng.choice(len(s), limit, replace=False)))
 
 
-def split_rooms(family: str, seed: int) -> tuple[list[LabelledCloud], list[LabelledCloud], np.random.Generator]:
-    """Training and validation rooms of one family's training buildings (VAL_ROOMS of each building held back,
-    also used to choose inference settings), and the generator that continues to draw the samples."""
-    rng = np.random.default_rng([seed, FAMILIES.index(family)])
-    train_rooms, val_rooms = [], []
-    for b in TRAIN_SEEDS[family]:
-        rooms = building_rooms(family, b)
-        order = rng.permutation(len(rooms))
-        val_rooms += [rooms[i] for i in order[:VAL_ROOMS]]
-        train_rooms += [rooms[i] for i in order[VAL_ROOMS:]]
-    return train_rooms, val_rooms, rng
+def training_rooms(generator: str) -> list[LabelledCloud]:
+    """Rooms of a generator's training buildings, the i-th building repainted with the i-th palette (cycling)."""
+    from aftershock.sources.simulator.looks import PALETTES
+
+    seeds = TRAIN_SEEDS[generator]
+    return [r for i, b in enumerate(seeds) for r in building_rooms(generator, b, PALETTES[i % len(PALETTES)])]
 
 
-_FAMILY_SAMPLES: dict[tuple[str, int], tuple[Samples, Samples, int]] = {}
+def validation_rooms(generator: str) -> list[LabelledCloud]:
+    """Rooms of a generator's validation buildings (natural colours): no training room comes from them."""
+    return [r for b in VALIDATION_SEEDS[generator] for r in building_rooms(generator, b)]
 
 
-def family_samples(family: str, cfg: LRGNetConfig, seed: int) -> tuple[Samples, Samples, int]:
-    """Training and validation samples of one family (validation: rooms of the training buildings held back);
-    kept for the run, so that the both-family weights reuse them (the same samples as when drawn anew)."""
-    key = (family, seed)
-    if key not in _FAMILY_SAMPLES:
-        train_rooms, val_rooms, rng = split_rooms(family, seed)
-        train_set = make_samples(train_rooms, cfg, rng)
-        _FAMILY_SAMPLES[key] = (train_set, make_samples(val_rooms, cfg, rng), len(train_rooms))
-    return _FAMILY_SAMPLES[key]
+def generator_samples(generator: str, cfg: LRGNetConfig, seed: int) -> tuple[Samples, Samples, int]:
+    """Training samples of one generator (rooms varied by `room_variant`, at most GENERATOR_SAMPLES) and
+    validation samples (validation rooms, half without colour), and the number of training rooms."""
+    rng = np.random.default_rng([seed, GENERATORS.index(generator)])
+    train_rooms = training_rooms(generator)
+    train_set = make_samples([room_variant(r, rng) for r in train_rooms], cfg, rng)
+    val = [without_colour(r) if i % 2 else r for i, r in enumerate(validation_rooms(generator))]
+    return _cap(train_set, GENERATOR_SAMPLES, rng), make_samples(val, cfg, rng), len(train_rooms)
 
 
-def targets(out: Path | None) -> dict[str, tuple[Path, tuple[str, ...]]]:
-    """The three weights files: one per family beside `out`, and both families in `out` itself."""
-    from aftershock.pipeline.refine import DEFAULT_WEIGHTS
-
-    main = Path(out) if out is not None else DEFAULT_WEIGHTS
-    result = {f: (main.with_name(f"{main.stem}_{f}{main.suffix}"), (f,)) for f in FAMILIES}
-    result["all"] = (main, FAMILIES)
-    return result
+def checkpoint_path(seed: int, epoch: int) -> Path:
+    return cache_dir() / "checkpoints" / f"lrgnet_seed{seed}_epoch{epoch}.pt"
 
 
-def train_target(name: str, path: Path, families: tuple[str, ...], seed: int, epochs: int) -> dict[str, Any]:
-    """Train and write one weights file; the same seed gives the same file whether run alone or within `train`."""
-    from aftershock.pipeline.refine import weight_settings
+def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict:
+    """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt);
+    the same seed gives the same file."""
+    from aftershock.pipeline.refine import DEFAULT_WEIGHTS, weight_settings
 
+    torch.set_num_threads(1)  # measured faster than 2 threads on the shared 2-core machine
+    path = Path(out) if out is not None else DEFAULT_WEIGHTS
+    check_output(path, force)
+    n_epochs = epochs if epochs is not None else EPOCHS
     cfg = LRGNetConfig()
     t0 = time.perf_counter()
-    data = [family_samples(f, cfg, seed) for f in families]
-    rng = np.random.default_rng([seed, 7])
+    data = [generator_samples(g, cfg, seed) for g in GENERATORS]
     train_set, val_set = data[0][0], data[0][1]
     for tr, va, _ in data[1:]:
         train_set, val_set = merge(train_set, tr), merge(val_set, va)
-    train_set, val_set = _cap(train_set, MAX_SAMPLES[name], rng), _cap(val_set, VAL_SAMPLES, rng)
+    val_set = _cap(val_set, VAL_SAMPLES, np.random.default_rng([seed, 7]))
     data_seconds = time.perf_counter() - t0
-    net, figs = fit(train_set, val_set, seed, epochs)
-    figs = {
-        "families": list(families),
-        "train_buildings": {f: list(TRAIN_SEEDS[f]) for f in families},
+    settings = {
+        **weight_settings(cfg), "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
+        "trajectory_steps": TRAJECTORY_STEPS, "colour_free_share": COLOUR_FREE_SHARE, "seed": seed,
+    }  # fmt: skip
+    base = {
+        "generators": list(GENERATORS),
+        "train_buildings": {g: list(TRAIN_SEEDS[g]) for g in GENERATORS},
+        "validation_buildings": {g: list(VALIDATION_SEEDS[g]) for g in GENERATORS},
         "train_rooms": sum(d[2] for d in data),
         "samples": len(train_set),
         "val_samples": len(val_set),
         "data_seconds": round(data_seconds, 1),
-        **figs,
     }
-    settings = {
-        **weight_settings(cfg), "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
-        "trajectory_steps": TRAJECTORY_STEPS, "seed": seed,
-    }  # fmt: skip
+
+    def checkpoint(net: LRGNet, epoch: int, history: list[dict[str, Any]]) -> None:
+        p = checkpoint_path(seed, epoch)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        save_weights(p, net, settings, {**base, "epochs": epoch, "history": history})
+        log.info("checkpoint %s", p)
+
+    net, figs = fit(train_set, val_set, seed, n_epochs, checkpoint)
+    figs = {**base, **figs}
     save_weights(path, net, settings, figs)
     log.info("wrote %s", path)
     last = figs["history"][-1] if figs["history"] else {}
-    return {"weights": str(path), "samples": len(train_set), "seconds": figs["train_seconds"], **last}
-
-
-def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict:
-    """`aftershock train lrgnet`: both families into `out` (default the shipped lrgnet.pt), and one family each
-    beside it (`<stem>_office.pt`, `<stem>_disaster.pt`)."""
-    torch.set_num_threads(1)  # measured faster than 2 threads on the shared 2-core machine
-    jobs = targets(out)
-    for path, _ in jobs.values():
-        check_output(path, force)
-    n_epochs = epochs if epochs is not None else EPOCHS
-    t0 = time.perf_counter()
-    result: dict[str, Any] = {"parameters": num_parameters(LRGNet())}
-    for name, (path, fams) in jobs.items():
-        result[name] = train_target(name, path, fams, seed, n_epochs)
-    result["total_seconds"] = round(time.perf_counter() - t0, 1)
-    return result
+    return {
+        "weights": str(path),
+        "parameters": num_parameters(net),
+        "samples": len(train_set),
+        "seconds": figs["train_seconds"],
+        **last,
+        "total_seconds": round(time.perf_counter() - t0, 1),
+    }

@@ -178,6 +178,10 @@ class LRGNetConfig(_Section):
     weights: str | None = None
     remove_threshold: Fraction = 0.9  # greedy: an inlier goes when P(remove) exceeds this (its loss is class-balanced)
     add_threshold: Fraction = 0.3  # greedy: a neighbour joins when P(add) exceeds this; both tuned on validation rooms
+    # Consolidation after growth (pipeline.refine.merge): touching flat segments within this angle and plane offset
+    # join; 0 turns it off.
+    merge_angle_deg: NonNegative = 0.0
+    merge_offset_m: NonNegative = 0.05
     # Baselines run beside LRGNet (pipeline.refine.baselines)
     baseline_normal_angle_deg: Angle = 10.0  # threshold region growing: normals within this angle (tuned)
     baseline_color_distance: NonNegative = 0.12  # ... and RGB (0..1) closer than this

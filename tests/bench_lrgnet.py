@@ -1,14 +1,16 @@
 """LRGNet benchmark (slow; `make bench-lrgnet`): the study's tables on the simulator's held-out buildings.
 
-- Same family: each family's own weights on held-out rooms of that family (and the shipped weights trained on
-  both families), per room and mean, with every baseline beside it; local search on a subset.
-- Across families: weights trained on one family tested on the other, both ways.
+- In-family: the shipped weights on held-out rooms of every training generator (office, disaster, hall), with
+  and without colour, per room and mean, with every baseline beside it; local search on a subset.
 - Speed: a 100,000-point scene, greedy; network steps per object.
-Rooms are cut out of held-out buildings (seeds disjoint from training) as in `models.lrgnet_train`.
+- `test_validation_choice` (run alone with -k, LRGNET_CANDIDATE=weights.pt): how weights and inference settings
+  are chosen, on the validation buildings of the training generators only.
+Rooms are cut out of held-out buildings (seeds disjoint from training and validation) as in `models.lrgnet_train`.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Final
 
@@ -16,36 +18,37 @@ import numpy as np
 import pytest
 import torch
 
-from aftershock.models.lrgnet_train import FAMILIES, HELDOUT_SEEDS, building_rooms
+from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, validation_rooms, without_colour
 from aftershock.pipeline.config import LRGNetConfig
-from aftershock.pipeline.refine import WEIGHTS_DIR, baseline_cloud, load_network, refine_cloud, scores
+from aftershock.pipeline.refine import DEFAULT_WEIGHTS, baseline_cloud, load_network, refine_cloud, scores
 from aftershock.pipeline.refine.baselines import available
 from aftershock.pipeline.refine.features import voxelise
 from aftershock.pipeline.types import LabelledCloud
 
 pytestmark = pytest.mark.slow
 
-ROOMS_PER_FAMILY: Final = 6
-SEARCH_ROOMS: Final = 1  # rooms per family for the (~10x slower) local searches
+ROOMS_PER_GENERATOR: Final = 6
+SEARCH_ROOMS: Final = 1  # rooms per generator for the (~10x slower) local searches
+VALIDATION_ROOMS: Final = 4  # per generator (the hall's buildings are one room)
 KEYS: Final = ("nmi", "ami", "ari", "precision", "recall", "mean_iou")
 SPEED_POINTS: Final = 100_000
 
 
 @pytest.fixture(scope="module")
 def rooms() -> dict[str, list[LabelledCloud]]:
+    """ROOMS_PER_GENERATOR held-out rooms of each training generator (with colour)."""
     out = {}
-    for f in FAMILIES:
-        all_rooms = [r for s in HELDOUT_SEEDS[f] for r in building_rooms(f, s)]
-        pick = np.random.default_rng(0).permutation(len(all_rooms))[:ROOMS_PER_FAMILY]
-        out[f] = [all_rooms[i] for i in sorted(pick)]
+    for g in GENERATORS:
+        all_rooms = [r for s in HELDOUT_SEEDS[g] for r in building_rooms(g, s)]
+        pick = np.random.default_rng(0).permutation(len(all_rooms))[:ROOMS_PER_GENERATOR]
+        out[g] = [all_rooms[i] for i in sorted(pick)]
     return out
 
 
-def _weights(name: str) -> str:
-    path = WEIGHTS_DIR / (f"lrgnet_{name}.pt" if name != "all" else "lrgnet.pt")
-    if not path.is_file():
-        pytest.skip(f"{path} missing: run `aftershock train lrgnet`")
-    return str(path)
+def _weights() -> str:
+    if not DEFAULT_WEIGHTS.is_file():
+        pytest.skip(f"{DEFAULT_WEIGHTS} missing: run `aftershock train lrgnet`")
+    return str(DEFAULT_WEIGHTS)
 
 
 def _lrgnet(rooms: list[LabelledCloud], weights: str, **cfg_updates) -> list[dict]:
@@ -59,17 +62,7 @@ def _lrgnet(rooms: list[LabelledCloud], weights: str, **cfg_updates) -> list[dic
     return rows
 
 
-_BASELINE_ROWS: dict[tuple[int, str], list[dict]] = {}  # the same rooms appear in two tables
-
-
 def _baseline(rooms: list[LabelledCloud], name: str) -> list[dict]:
-    key = (id(rooms), str(name))
-    if key not in _BASELINE_ROWS:
-        _BASELINE_ROWS[key] = _baseline_rows(rooms, name)
-    return _BASELINE_ROWS[key]
-
-
-def _baseline_rows(rooms: list[LabelledCloud], name: str) -> list[dict]:
     cfg = LRGNetConfig()
     rows = []
     for room in rooms:
@@ -102,59 +95,63 @@ def _row(name: str, scene: str, r: dict) -> str:
 def test_same_family(rooms: dict[str, list[LabelledCloud]]) -> None:
     torch.set_num_threads(1)
     means = {}
-    for f in FAMILIES:
-        table = {f"lrgnet ({f})": _lrgnet(rooms[f], _weights(f))}
-        for b in available():
-            table[b.value] = _baseline(rooms[f], b)
-        _print_table(f"held-out {f} rooms, same family (greedy)", table)
-        means[f] = _mean(table[f"lrgnet ({f})"])
-    for f, m in means.items():
-        print(f"{f}: NMI {m['nmi']:.3f} (target 0.85), AMI {m['ami']:.3f} (0.80), ARI {m['ari']:.3f} (0.80)")
+    for g in GENERATORS:
+        for colour in (True, False):
+            rs = rooms[g] if colour else [without_colour(r) for r in rooms[g]]
+            mode = "rgb" if colour else "no colour"
+            table = {"lrgnet": _lrgnet(rs, _weights())}
+            for b in available():
+                table[b.value] = _baseline(rs, b)
+            _print_table(f"held-out {g} rooms, {mode} (greedy)", table)
+            means[(g, mode)] = _mean(table["lrgnet"])
+    for (g, mode), m in means.items():
+        print(f"{g} {mode}: NMI {m['nmi']:.3f} (target 0.85), AMI {m['ami']:.3f} (0.80), ARI {m['ari']:.3f} (0.80)")
     assert all(m["nmi"] > 0.5 for m in means.values())
-
-
-def test_both_families(rooms: dict[str, list[LabelledCloud]]) -> None:
-    """The shipped default, trained on both families, on the held-out rooms of each."""
-    torch.set_num_threads(1)
-    for f in FAMILIES:
-        _print_table(
-            f"held-out {f} rooms, weights of both families (greedy)",
-            {"lrgnet (both)": _lrgnet(rooms[f], _weights("all"))},
-        )
 
 
 def test_local_search(rooms: dict[str, list[LabelledCloud]]) -> None:
     torch.set_num_threads(1)
-    for f in FAMILIES:
-        sub = rooms[f][:SEARCH_ROOMS]
-        w = _weights(f)
-        table = {"greedy": _lrgnet(sub, w)}
+    for g in GENERATORS:
+        sub = rooms[g][:SEARCH_ROOMS]
+        table = {"greedy": _lrgnet(sub, _weights())}
         for search, score in (("restart", "np"), ("beam", "np")):
-            table[f"{search} ({score})"] = _lrgnet(sub, w, search=search, score=score)
-        _print_table(f"held-out {f} rooms, local search ({SEARCH_ROOMS} rooms)", table, per_scene=False)
+            table[f"{search} ({score})"] = _lrgnet(sub, _weights(), search=search, score=score)
+        _print_table(f"held-out {g} rooms, local search ({SEARCH_ROOMS} rooms)", table, per_scene=False)
 
 
-def test_cross_family(rooms: dict[str, list[LabelledCloud]]) -> None:
+def test_validation_choice() -> None:
+    """Candidate weights (LRGNET_CANDIDATE) and inference settings (LRGNET_SETTINGS, `;`-separated
+    `key=value,...` sets) on rooms of the validation buildings, rgb and without colour; never held-out data."""
     torch.set_num_threads(1)
-    ahead = []
-    for train_f, test_f in (("office", "disaster"), ("disaster", "office")):
-        table = {f"lrgnet ({train_f})": _lrgnet(rooms[test_f], _weights(train_f))}
-        for b in available():
-            table[b.value] = _baseline(rooms[test_f], b)
-        _print_table(f"cross family: trained on {train_f}, tested on {test_f}", table, per_scene=False)
-        m = {k: _mean(v) for k, v in table.items()}
-        lrg = m[f"lrgnet ({train_f})"]
-        best = {k: max(v[k] for n, v in m.items() if not n.startswith("lrgnet")) for k in ("ami", "ari")}
-        ahead.append(lrg["ami"] > best["ami"] and lrg["ari"] > best["ari"])
-        print(f"LRGNet ahead of every baseline on AMI and ARI: {ahead[-1]}")
+    weights = os.environ.get("LRGNET_CANDIDATE") or _weights()
+    sets = [dict(kv.split("=") for kv in s.split(",") if kv) for s in os.environ.get("LRGNET_SETTINGS", "").split(";")]
+    val = {}
+    for g in GENERATORS:
+        all_rooms = validation_rooms(g)
+        pick = np.random.default_rng(0).permutation(len(all_rooms))[:VALIDATION_ROOMS]
+        val[g] = [all_rooms[i] for i in sorted(pick)]
+    for updates in sets:
+        cells = {}
+        for g, rs in val.items():
+            for colour in (True, False):
+                rows = _lrgnet(rs if colour else [without_colour(r) for r in rs], weights, **updates)
+                cells[(g, colour)] = _mean(rows)
+        m = {k: float(np.mean([c[k] for c in cells.values()])) for k in KEYS}
+        mono = {k: float(np.mean([c[k] for (_, col), c in cells.items() if not col])) for k in KEYS}
+        print(
+            f"validation {weights} {updates or 'defaults'}: "
+            + " ".join(f"{k} {m[k]:.3f}" for k in KEYS)
+            + " | no colour "
+            + " ".join(f"{k} {mono[k]:.3f}" for k in ("ami", "ari", "precision", "recall")),
+            flush=True,
+        )
 
 
 def test_speed_100k() -> None:
     """One story of a held-out office building (the union of its rooms), its first 100,000 points along x: at
     0.1 m spacing that is ~100,000 voxels, a harder case than 100,000 raw points of a finer scan."""
     torch.set_num_threads(1)
-    f = "office"
-    rooms = building_rooms(f, HELDOUT_SEEDS[f][0])
+    rooms = building_rooms("office", HELDOUT_SEEDS["office"][0])
     pts = np.concatenate([r.points for r in rooms])
     _, first = np.unique(pts, axis=0, return_index=True)
     union = LabelledCloud(
@@ -167,7 +164,7 @@ def test_speed_100k() -> None:
     story = union.select(union.points[:, 2] < union.points[:, 2].min() + 3.3)
     order = np.argsort(story.points[:, 0], kind="stable")[:SPEED_POINTS]
     part = story.select(np.sort(order))
-    cfg = LRGNetConfig(weights=_weights("all"))
+    cfg = LRGNetConfig(weights=_weights())
     net = load_network(cfg)
     t0 = time.perf_counter()
     r = refine_cloud(part, cfg, net=net)

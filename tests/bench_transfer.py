@@ -212,20 +212,10 @@ def test_validation_choice(tmp_path: Path) -> None:
         )
 
 
-def _rooms(generator: str, seed: int) -> list:
-    from aftershock.models.lrgnet_train import RAW_SPACING_M, building_rooms, cut_rooms
-    from aftershock.sources.simulator.generators import generate
-
-    if generator in FAMILIES:
-        return building_rooms(generator, seed)
-    scene = generate(generator, seed)
-    return cut_rooms(scene.sample_static_cloud(RAW_SPACING_M, seed), scene.rooms, scene.floor_z, scene.ceiling_z)
-
-
 def test_lrgnet_transfer() -> None:
     import torch
 
-    from aftershock.models.lrgnet_train import HELDOUT_SEEDS
+    from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, without_colour
     from aftershock.pipeline.config import LRGNetConfig
     from aftershock.pipeline.refine import WEIGHTS_DIR, baseline_cloud, load_network, refine_cloud, scores
     from aftershock.pipeline.refine.baselines import Baseline
@@ -235,15 +225,15 @@ def test_lrgnet_transfer() -> None:
     weights = WEIGHTS_DIR / "lrgnet.pt"
     cfg = LRGNetConfig(weights=str(weights))
     net = load_network(cfg)
-    domains = {f: [r for s in HELDOUT_SEEDS[f] for r in _rooms(f, s)] for f in FAMILIES}
-    domains[HELDOUT_GENERATOR] = [r for s in SEEDS for r in _rooms(HELDOUT_GENERATOR, s)]
+    domains = {g: [r for s in HELDOUT_SEEDS[g] for r in building_rooms(g, s)] for g in GENERATORS}
+    domains[HELDOUT_GENERATOR] = [r for s in SEEDS for r in building_rooms(HELDOUT_GENERATOR, s)]
     rng = np.random.default_rng(0)
     domains = {k: [v[i] for i in sorted(rng.permutation(len(v))[:LRG_ROOMS])] for k, v in domains.items() if len(v)}
     baselines = [b for b in Baseline if b != Baseline.MCPNET]
     results: dict[str, dict[tuple[str, bool], dict[str, float]]] = {}
     for dom, rooms in domains.items():
         for color in (True, False):
-            rs = rooms if color else [r.__class__(r.points, None, None, r.class_ids, r.instance_ids) for r in rooms]
+            rs = rooms if color else [without_colour(r) for r in rooms]
             rows = [scores(r.instance_ids, refine_cloud(r, cfg, net=net).instance_ids) for r in rs]
             results.setdefault("lrgnet", {})[(dom, color)] = {k: float(np.mean([x[k] for x in rows])) for k in LRG_KEYS}
             for b in baselines:
@@ -259,7 +249,7 @@ def test_lrgnet_transfer() -> None:
                 f"  lrgnet {dom:9s} {'rgb ' if color else 'mono'} AMI {lr['ami']:.3f} ARI {lr['ari']:.3f}", flush=True
             )
     cols = [(d, c) for c in (True, False) for d in domains]
-    where = f"families: held-out buildings of lrgnet_train; {HELDOUT_GENERATOR}: seeds {', '.join(map(str, SEEDS))}"
+    where = f"held-out buildings of lrgnet_train; {HELDOUT_GENERATOR}: seeds {', '.join(map(str, SEEDS))}"
     print(f"\nLRGNet rooms: {LRG_ROOMS} per domain ({where})")
     print("| method | " + " | ".join(f"{d} {'rgb' if c else 'no colour'}" for d, c in cols) + " |")
     print("|---|" + "---|" * len(cols))

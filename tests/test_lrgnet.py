@@ -8,18 +8,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from scipy.spatial import cKDTree
 
 from aftershock.models.lrgnet import LRGNet, load_weights, num_parameters, save_weights
 from aftershock.models.lrgnet_train import (
+    GENERATORS,
     HELDOUT_SEEDS,
     TRAIN_SEEDS,
+    VALIDATION_SEEDS,
     WARMUP_STEPS,
     batch_tensors,
     lr_factor,
     make_samples,
+    room_variant,
     simulate_growth,
     voxel_truth,
+    without_colour,
 )
+from aftershock.models.transfer_split import HELDOUT_GENERATOR
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.config import LRGNetConfig
@@ -28,6 +34,7 @@ from aftershock.pipeline.refine import baseline_cloud, refine_cloud, scores, wei
 from aftershock.pipeline.refine.baselines import Baseline
 from aftershock.pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
 from aftershock.pipeline.refine.grow import Grower, Growth, seed_order
+from aftershock.pipeline.refine.merge import merge_coplanar
 from aftershock.pipeline.types import LabelledCloud
 
 
@@ -122,6 +129,8 @@ def test_features_shape_and_ranges() -> None:
     assert room.min() >= 0 and room.max() <= 1 and np.allclose(room.max(axis=0), 1)
     assert np.allclose(np.linalg.norm(vc.features[:, 9:12], axis=1), 1, atol=1e-4)
     assert vc.features[:, 2].min() == pytest.approx(0, abs=1e-6)  # z above the floor
+    shape = vc.features[:, 13:16]  # planarity, linearity, verticality
+    assert shape.min() >= 0 and shape.max() <= 1 + 1e-5
     assert vc.voxel_of_point.shape == (len(cloud),) and vc.voxel_of_point.max() == m - 1
     # Floor voxels away from walls and boxes: flat (curvature ~ 0) with normals up.
     x, y = vc.points[:, 0], vc.points[:, 1]
@@ -129,6 +138,9 @@ def test_features_shape_and_ranges() -> None:
     assert floor.sum() > 50
     assert np.median(vc.curvature[floor]) < 0.01
     assert np.all(vc.features[floor, 11] > 0.99)
+    assert np.all(vc.features[floor, 15] > 0.99) and np.median(vc.features[floor, 13]) > 0.8  # flat, horizontal
+    x_wall = cloud.instance_ids[vc.first_point] == 2
+    assert np.median(vc.features[x_wall, 15]) < 0.05  # a wall: not horizontal at all
     # Adjacency is symmetric: 26-neighbourhood of touching voxels.
     a = vc.adjacency
     i, k = np.nonzero(a >= 0)
@@ -143,14 +155,16 @@ def test_step_normalisation_is_relative_to_region_median() -> None:
     assert np.allclose(np.median(f[:, 0:2], axis=0), 0, atol=1e-5)
     assert np.allclose(np.median(f[:, 6:13], axis=0), 0, atol=1e-5)
     assert np.array_equal(f[:, 2:6], vc.features[region, 2:6])  # z and room-normalised xyz untouched
+    assert np.array_equal(f[:, 13:16], vc.features[region, 13:16])  # the local shape stays absolute
 
 
 # ----------------------------------------------------------------------------- network
 def test_network_shapes_parameters_and_batch_independence() -> None:
     net = LRGNet().eval()
-    assert num_parameters(net) == 791_044  # ~0.79 M as in the study
+    assert net.in_features == NUM_FEATURES
+    assert num_parameters(net) == 791_428  # ~0.79 M as in the study (its 13 inputs: 791,044)
     torch.manual_seed(1)
-    xi, xn = torch.randn(3, 512, 13), torch.randn(3, 300, 13)
+    xi, xn = torch.randn(3, 512, NUM_FEATURES), torch.randn(3, 300, NUM_FEATURES)
     with torch.no_grad():
         rm, add = net(xi, xn)
         assert rm.shape == (3, 512, 2) and add.shape == (3, 300, 2)
@@ -265,7 +279,8 @@ def test_simulated_growth_labels_match_the_truth() -> None:
         assert np.all((truth[sn] == (target[0] if len(target) else -1)) == add) or not len(target)
     samples = make_samples([cloud], LRGNetConfig(), np.random.default_rng(0), points=32)
     xi, xn, rm, add = batch_tensors(samples, np.arange(4), np.random.default_rng(0))
-    assert xi.shape == (4, 32, 13) and xn.shape == (4, 32, 13) and rm.shape == (4, 32) and add.shape == (4, 32)
+    assert xi.shape == (4, 32, NUM_FEATURES) and xn.shape == (4, 32, NUM_FEATURES)
+    assert rm.shape == (4, 32) and add.shape == (4, 32)
     assert torch.allclose(xi[..., 9:12].norm(dim=-1), xi[..., 9:12].norm(dim=-1))  # finite
 
 
@@ -276,8 +291,44 @@ def test_training_schedule_and_buildings() -> None:
     assert f[0] == pytest.approx(1 / WARMUP_STEPS) and f[WARMUP_STEPS - 1] == pytest.approx(1.0)
     assert np.all(np.diff(f[WARMUP_STEPS - 1 :]) <= 1e-12) and f[total] == pytest.approx(0.0, abs=1e-12)
     assert f[(total + WARMUP_STEPS) // 2] == pytest.approx(0.5, abs=0.01)
-    for family, seeds in TRAIN_SEEDS.items():
-        assert len(seeds) > 1 and not set(seeds) & set(HELDOUT_SEEDS[family])
+    assert HELDOUT_GENERATOR not in GENERATORS and set(TRAIN_SEEDS) == set(GENERATORS) == set(HELDOUT_SEEDS)
+    for g, seeds in TRAIN_SEEDS.items():
+        assert len(seeds) > 1 and len({*seeds, *VALIDATION_SEEDS[g], *HELDOUT_SEEDS[g]}) == len(seeds) + 2
+
+
+def test_training_rooms_without_colour_are_what_inference_sees() -> None:
+    """Colour-free training rooms carry no colour at all, so their colour features are zero as at inference;
+    a room variant keeps most points, each moved by at most a few centimetres, with its labels."""
+    cloud = small_room()
+    plain = without_colour(cloud)
+    assert plain.colors is None and np.array_equal(plain.instance_ids, cloud.instance_ids)
+    assert np.all(voxelise(plain, 0.1).features[:, 6:9] == 0) and voxelise(cloud, 0.1).features[:, 6:9].max() > 0
+    rng = np.random.default_rng(0)
+    variants = [room_variant(cloud, rng) for _ in range(20)]
+    assert 5 < sum(v.colors is None for v in variants) < 15
+    tree = cKDTree(cloud.points)
+    for v in variants:
+        assert 0.65 * len(cloud) < len(v) <= len(cloud) and len(v.instance_ids) == len(v)
+        dist, nearest = tree.query(v.points)
+        assert dist.max() < 0.06 and np.mean(cloud.instance_ids[nearest] == v.instance_ids) > 0.95
+
+
+# ----------------------------------------------------------------------------- consolidation
+def test_coplanar_pieces_merge_and_other_segments_do_not() -> None:
+    """A floor cut into four pieces becomes one; the wall at right angles and the box on the floor stay apart."""
+    cloud = small_room()
+    vc = voxelise(cloud, 0.1)
+    truth = voxel_truth(vc, cloud)
+    labels = truth.copy()
+    floor = truth == 1
+    x, y = vc.points[:, 0], vc.points[:, 1]
+    labels[floor] = 10 + (x[floor] > 1.5) + 2 * (y[floor] > 1.2)  # four pieces of one floor
+    merged = merge_coplanar(vc, labels, 5.0, 0.05)
+    assert len(np.unique(merged[floor])) == 1
+    for t in (2, 3, 4, 5):
+        assert np.array_equal(merged[truth == t], labels[truth == t])
+    assert len(np.unique(merged)) == 5
+    assert np.array_equal(merge_coplanar(vc, truth, 5.0, 0.05), truth)  # nothing to merge
 
 
 # ----------------------------------------------------------------------------- baselines
@@ -319,6 +370,12 @@ def test_refine_command_bad_input(tmp_path: Path, weights_file: Path, capsys: py
     assert main(["refine", str(ply), "--weights", str(wrong)]) == 2
     err = capsys.readouterr().err
     assert "wrong.pt" in err and "voxel_size_m" in err and "aftershock train lrgnet" in err
+    old = tmp_path / "old_layout.pt"  # weights of the 13-feature layout shipped before #12
+    save_weights(old, LRGNet(13), {**weight_settings(LRGNetConfig()), "features": 13, "feature_version": 1}, {})
+    assert main(["refine", str(ply), "--weights", str(old)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "old_layout.pt" in err and "features=13" in err
+    assert "aftershock train lrgnet --force" in err
     with pytest.raises(InputError, match="not an LRGNet weights file"):
         torch.save({"x": 1}, tmp_path / "other.pt")
         load_weights(tmp_path / "other.pt", weight_settings(LRGNetConfig()))

@@ -22,10 +22,11 @@ from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
 from aftershock.pipeline.refine.features import NUM_FEATURES, VoxelCloud, voxelise
 from aftershock.pipeline.refine.grow import Grower, Search
+from aftershock.pipeline.refine.merge import merge_coplanar
 from aftershock.pipeline.types import LabelledCloud
 
 DEFAULT_WEIGHTS: Final = WEIGHTS_DIR / "lrgnet.pt"
-FEATURE_VERSION: Final = 1  # bump when the meaning of the 13 features changes
+FEATURE_VERSION: Final = 2  # bump when the meaning of the features changes (2: planarity, linearity, verticality)
 
 
 @dataclass(slots=True)
@@ -84,7 +85,10 @@ def refine_cloud(
         seg = Grower(vc, net, cfg).segment(record_object)
     finally:
         torch.set_num_threads(threads)
-    labels = attach_small_segments(vc.points, seg.labels, cfg.min_segment_points)
+    labels = seg.labels
+    if cfg.merge_angle_deg > 0:
+        labels = merge_coplanar(vc, labels, cfg.merge_angle_deg, cfg.merge_offset_m)
+    labels = attach_small_segments(vc.points, labels, cfg.min_segment_points)
     steps = None
     if seg.history is not None:
         steps = [(to_points(vc, inl), to_points(vc, nb)) for inl, nb in seg.history]

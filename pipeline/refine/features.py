@@ -1,10 +1,13 @@
 """LRGNet's per-point features over a voxelised cloud, and their per-step normalisation.
 
 A cloud is reduced to one point per voxel (the centroid of its raw points); normals and curvature come from
-PCA over the raw points of the surrounding 3 x 3 x 3 voxels. The 13 features of a voxel are
-`[x, y, z, u, v, w, r, g, b, nx, ny, nz, curvature]`: xyz with z above the scene's floor (x, y are made
-relative to the region's median at each step), room-normalised xyz in [0, 1], colour in [0, 1], the unit
-normal and the curvature; at each step colour, normal and curvature are made relative to the region's median.
+PCA over the raw points of the surrounding 3 x 3 x 3 voxels. The 16 features of a voxel are
+`[x, y, z, u, v, w, r, g, b, nx, ny, nz, curvature, planarity, linearity, verticality]`: xyz with z above the
+scene's floor (x, y are made relative to the region's median at each step), room-normalised xyz in [0, 1],
+colour in [0, 1] (zero without colour), the unit normal and the curvature, which at each step are made relative
+to the region's median; then the local shape, kept absolute because it transfers between buildings: planarity
+(λ2 - λ3) / λ1 and linearity (λ1 - λ2) / λ1 of the local eigenvalues λ1 ≥ λ2 ≥ λ3, and |n_z| (1 on floors,
+0 on walls).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import numpy as np
 from aftershock.pipeline.geometry import voxel_keys
 from aftershock.pipeline.types import LabelledCloud
 
-NUM_FEATURES: Final = 13
+NUM_FEATURES: Final = 16
 LOCAL_XY: Final = slice(0, 2)
 NORMALISED: Final = slice(6, 13)  # colour, normal, curvature: minus the region's median per step
 NORMAL: Final = slice(9, 12)
@@ -34,7 +37,7 @@ class VoxelCloud:
     """A cloud reduced to voxels, with everything region growing needs."""
 
     points: np.ndarray  # (M, 3) float64 voxel centroids
-    features: np.ndarray  # (M, 13) float32, before per-step normalisation
+    features: np.ndarray  # (M, 16) float32, before per-step normalisation
     curvature: np.ndarray  # (M,) float32
     adjacency: np.ndarray  # (M, K) int64 indices of the occupied neighbouring voxels, -1 where empty
     voxel_of_point: np.ndarray  # (N,) int64 voxel index of every raw point
@@ -73,8 +76,9 @@ def canonical_normals(normals: np.ndarray) -> np.ndarray:
 
 def _pca_over_neighbourhood(
     raw: np.ndarray, voxel_of_point: np.ndarray, adjacency: np.ndarray, m: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Normals (canonical sign) and curvature = smallest eigenvalue / sum from the raw points of 27 voxels."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """From the raw points of 27 voxels: normals (canonical sign), curvature = smallest eigenvalue / sum, and the
+    local shape (M, 3): planarity, linearity, |n_z|."""
     centre = raw.mean(axis=0)
     p = raw - centre  # conditioning: second moments about the scene centre
     count = np.bincount(voxel_of_point, minlength=m).astype(np.float64)
@@ -93,11 +97,15 @@ def _pca_over_neighbourhood(
     total = evals.sum(axis=1)
     curvature = np.where(total > 1e-12, evals[:, 0].clip(min=0) / np.where(total > 1e-12, total, 1), 0.0)
     curvature[n < 3] = 1.0
-    return normals.astype(np.float32), curvature.astype(np.float32)
+    ev = evals.clip(min=0)
+    big = np.where(ev[:, 2] > 1e-12, ev[:, 2], 1.0)
+    shape = np.stack([(ev[:, 1] - ev[:, 0]) / big, (ev[:, 2] - ev[:, 1]) / big, np.abs(normals[:, 2])], axis=1)
+    shape[n < 3] = 0.0
+    return normals.astype(np.float32), curvature.astype(np.float32), shape.astype(np.float32)
 
 
 def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None) -> VoxelCloud:
-    """One point per voxel with its 13 base features, its neighbourhood and the raw-point mapping.
+    """One point per voxel with its 16 base features, its neighbourhood and the raw-point mapping.
 
     Two voxels are neighbours when they lie within δ of each other in every axis, counted in whole voxels
     (at least one): with δ = the voxel size, the 26 voxels touching a voxel. Measured between voxels rather than
@@ -110,7 +118,7 @@ def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None)
     count = np.bincount(inverse, minlength=m).astype(np.float64)
     centroid = np.stack([np.bincount(inverse, raw[:, i], m) for i in range(3)], axis=1) / count[:, None]
     touching = _neighbour_table(uniq, neighbour_offsets(1))
-    normals, curvature = _pca_over_neighbourhood(raw, inverse, touching, m)
+    normals, curvature, shape = _pca_over_neighbourhood(raw, inverse, touching, m)
     reach = max(1, round((delta_m if delta_m is not None else voxel_m) / voxel_m))
     adjacency = touching if reach == 1 else _neighbour_table(uniq, neighbour_offsets(reach))
     if cloud.colors is not None:
@@ -122,7 +130,7 @@ def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None)
     room = (centroid - lo) / np.where(hi - lo > 1e-9, hi - lo, 1.0)
     xyz = centroid.copy()
     xyz[:, 2] -= lo[2]
-    features = np.concatenate([xyz, room, rgb, normals, curvature[:, None]], axis=1).astype(np.float32)
+    features = np.concatenate([xyz, room, rgb, normals, curvature[:, None], shape], axis=1).astype(np.float32)
     return VoxelCloud(centroid, features, curvature, adjacency, inverse, first)
 
 
