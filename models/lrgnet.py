@@ -112,9 +112,10 @@ def save_weights(path: Path, net: LRGNet, settings: dict[str, Any], figures: dic
     torch.save({"header": header, "state_dict": state}, path)
 
 
-def load_weights(path: str | Path, expected: dict[str, Any]) -> tuple[LRGNet, dict[str, Any]]:
-    """Load weights and check their header against the settings in use; a mismatch is an InputError that names
-    the file and how to rebuild it."""
+def load_weights(path: str | Path, expected: dict[str, Any], layouts: dict[int, int]) -> tuple[LRGNet, dict[str, Any]]:
+    """Load weights and check their header against the settings in use and the feature layouts this version
+    reads (`layouts`: feature version -> number of features); a mismatch is an InputError that names the file and
+    how to rebuild it."""
     p = Path(path)
     blob = read_weights(p, "LRGNet", REBUILD_HINT)
     header = blob.get("header")
@@ -123,11 +124,19 @@ def load_weights(path: str | Path, expected: dict[str, Any]) -> tuple[LRGNet, di
     if header.get("version") != FORMAT_VERSION:
         raise InputError(f"LRGNet weights format {header.get('version')} != {FORMAT_VERSION}; {REBUILD_HINT}", p)
     settings = header.get("settings", {})
+    layout = (settings.get("feature_version"), settings.get("features"))
+    if layouts.get(layout[0]) != layout[1]:
+        known = ", ".join(f"{v} ({n} features)" for v, n in layouts.items())
+        raise InputError(
+            f"LRGNet weights of feature layout {layout[0]} ({layout[1]} features), this version reads {known}; "
+            f"{REBUILD_HINT}",
+            p,
+        )
     wrong = {k: (settings.get(k), v) for k, v in expected.items() if settings.get(k) != v}
     if wrong:
         detail = ", ".join(f"{k}={a!r} (expected {b!r})" for k, (a, b) in wrong.items())
         raise InputError(f"LRGNet weights were trained for other settings: {detail}; {REBUILD_HINT}", p)
-    net = LRGNet(int(settings.get("features", 16)))
+    net = LRGNet(int(layout[1]))
     try:
         net.load_state_dict(blob["state_dict"])
     except (RuntimeError, KeyError) as exc:

@@ -30,7 +30,8 @@ from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.refine import baseline_cloud, refine_cloud, scores, weight_settings
+from aftershock.pipeline.geometry import attach_small_segments
+from aftershock.pipeline.refine import LAYOUTS, baseline_cloud, load_network, refine_cloud, scores, weight_settings
 from aftershock.pipeline.refine.baselines import Baseline
 from aftershock.pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
 from aftershock.pipeline.refine.grow import Grower, Growth, seed_order
@@ -370,15 +371,39 @@ def test_refine_command_bad_input(tmp_path: Path, weights_file: Path, capsys: py
     assert main(["refine", str(ply), "--weights", str(wrong)]) == 2
     err = capsys.readouterr().err
     assert "wrong.pt" in err and "voxel_size_m" in err and "aftershock train lrgnet" in err
-    old = tmp_path / "old_layout.pt"  # weights of the 13-feature layout shipped before #12
-    save_weights(old, LRGNet(13), {**weight_settings(LRGNetConfig()), "features": 13, "feature_version": 1}, {})
-    assert main(["refine", str(ply), "--weights", str(old)]) == 2
+    other = tmp_path / "other_layout.pt"  # a layout this version does not know
+    save_weights(other, LRGNet(20), {**weight_settings(LRGNetConfig()), "features": 20, "feature_version": 3}, {})
+    assert main(["refine", str(ply), "--weights", str(other)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "old_layout.pt" in err and "features=13" in err
+    assert err.count("\n") == 1 and "other_layout.pt" in err and "layout 3 (20 features)" in err
     assert "aftershock train lrgnet --force" in err
+    with pytest.raises(InputError, match="layout 2 \\(13 features\\)"):
+        save_weights(other, LRGNet(13), {**weight_settings(LRGNetConfig()), "features": 13}, {})
+        load_network(LRGNetConfig(weights=str(other)))
     with pytest.raises(InputError, match="not an LRGNet weights file"):
         torch.save({"x": 1}, tmp_path / "other.pt")
-        load_weights(tmp_path / "other.pt", weight_settings(LRGNetConfig()))
+        load_weights(tmp_path / "other.pt", weight_settings(LRGNetConfig()), LAYOUTS)
+
+
+def test_weights_of_the_older_layout_read_its_first_columns(tmp_path: Path) -> None:
+    """13-feature weights (layout 1, before the local shape) still run, on the first 13 columns, and give the same
+    segmentation as the same network fed those columns by hand."""
+    path = tmp_path / "layout1.pt"
+    torch.manual_seed(0)
+    net13 = LRGNet(13)
+    save_weights(path, net13, {**weight_settings(LRGNetConfig()), "features": 13, "feature_version": 1}, {})
+    cfg = LRGNetConfig(weights=str(path), max_steps=6)
+    loaded = load_network(cfg)
+    assert loaded.in_features == 13
+    cloud = small_room()
+    res = refine_cloud(cloud, cfg)
+    vc = voxelise(cloud, 0.1)
+    vc.features = vc.features[:, :13].copy()
+    torch.manual_seed(cfg.seed)
+    seg = Grower(vc, net13.eval(), cfg).segment()
+    by_hand = attach_small_segments(vc.points, seg.labels, cfg.min_segment_points)[vc.voxel_of_point]
+    assert np.array_equal(res.instance_ids, by_hand) and res.steps_per_object == seg.steps_per_object
+    assert len(np.unique(res.instance_ids)) > 1
 
 
 def test_shipped_weights_segment_a_simple_room() -> None:

@@ -27,6 +27,9 @@ from aftershock.pipeline.types import LabelledCloud
 
 DEFAULT_WEIGHTS: Final = WEIGHTS_DIR / "lrgnet.pt"
 FEATURE_VERSION: Final = 2  # bump when the meaning of the features changes (2: planarity, linearity, verticality)
+# Feature layouts that weights may have been trained for (version -> features). Each is a prefix of the current
+# one, so older weights read the first columns: version 1 is the 13 features before the local shape.
+LAYOUTS: Final = {1: 13, FEATURE_VERSION: NUM_FEATURES}
 
 
 @dataclass(slots=True)
@@ -40,17 +43,17 @@ class RefineResult:
 
 
 def weight_settings(cfg: LRGNetConfig) -> dict[str, Any]:
-    """What a weights file must have been trained for to be used with `cfg`."""
-    return {
-        "features": NUM_FEATURES,
-        "feature_version": FEATURE_VERSION,
-        "voxel_size_m": cfg.voxel_size_m,
-        "delta_m": cfg.delta_m,
-    }
+    """What weights trained now for `cfg` record: the feature layout and the voxel settings."""
+    return {"features": NUM_FEATURES, "feature_version": FEATURE_VERSION, **voxel_settings(cfg)}
+
+
+def voxel_settings(cfg: LRGNetConfig) -> dict[str, Any]:
+    """What a weights file must have been trained for to be used with `cfg` (besides a layout in LAYOUTS)."""
+    return {"voxel_size_m": cfg.voxel_size_m, "delta_m": cfg.delta_m}
 
 
 def load_network(cfg: LRGNetConfig, path: str | Path | None = None) -> LRGNet:
-    net, _ = load_weights(path or cfg.weights or DEFAULT_WEIGHTS, weight_settings(cfg))
+    net, _ = load_weights(path or cfg.weights or DEFAULT_WEIGHTS, voxel_settings(cfg), LAYOUTS)
     return net
 
 
@@ -79,6 +82,7 @@ def refine_cloud(
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
+    vc.features = vc.features[:, : net.in_features]  # weights of an older layout read its first columns
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # thousands of small products: extra threads only add overhead (measured 20x slower)
     try:
