@@ -34,7 +34,7 @@ from aftershock.models.transfer_split import (
 )
 from aftershock.pipeline.classes import CLASS_NAMES
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
 
 SCANS: Final = int(os.environ.get("TRANSFER_SCANS", "100"))
 SEEDS: Final = tuple(int(s) for s in os.environ.get("TRANSFER_SEEDS", "").split(",") if s) or TEST_SEEDS
