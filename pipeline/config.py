@@ -177,7 +177,7 @@ class LRGNetConfig(_Section):
     seed: Seed = 0
     weights: str | None = None
     remove_threshold: Fraction = 0.9  # greedy: an inlier goes when P(remove) exceeds this (its loss is class-balanced)
-    add_threshold: Fraction = 0.3  # greedy: a neighbour joins when P(add) exceeds this; both tuned on validation rooms
+    add_threshold: Fraction = 0.5  # greedy: a neighbour joins when P(add) exceeds this; 0.5 beat 0.3 on validation
     # Consolidation after growth (pipeline.refine.merge): touching flat segments within this angle and plane offset
     # join; 0 turns it off. 5 deg / 5 cm: best of 3/0.03, 5/0.05, 10/0.1, 20/0.1 on validation rooms (README).
     merge_angle_deg: NonNegative = 5.0
