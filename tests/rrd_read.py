@@ -82,9 +82,19 @@ def read_rrd(path: str | Path) -> Recording:
     return rec
 
 
-def rrd_verify(path: str | Path) -> subprocess.CompletedProcess:
-    """`rerun rrd verify PATH` with the rerun command next to this Python."""
+def rerun_rrd(subcommand: str, path: str | Path) -> subprocess.CompletedProcess:
+    """`rerun rrd SUBCOMMAND PATH` with the rerun command next to this Python."""
     rerun = Path(sys.executable).with_name("rerun")
     env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
-    cmd = [str(rerun), "rrd", "verify", str(path)]
+    cmd = [str(rerun), "rrd", subcommand, str(path)]
     return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120)
+
+
+def rrd_verify(path: str | Path) -> subprocess.CompletedProcess:
+    """`rerun rrd verify PATH`: whether the file is a complete, valid recording."""
+    return rerun_rrd("verify", path)
+
+
+def rrd_print(path: str | Path) -> subprocess.CompletedProcess:
+    """`rerun rrd print PATH`: what a recording holds, read as far as it goes."""
+    return rerun_rrd("print", path)

@@ -34,7 +34,7 @@ from faults_data import (
 )
 from fixtures import PERIOD_NS, T0_NS, chunk_offsets, interruptible, write_bag
 from mcap.writer import CompressionType
-from rrd_read import read_rrd, rrd_verify
+from rrd_read import read_rrd, rrd_print, rrd_verify
 
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
@@ -130,13 +130,7 @@ def test_1_a_disk_full_at_once_ends_the_run_in_seconds_with_what_was_written_rea
         assert proc.returncode == 2, err
         line = assert_one_line(err, out)
         assert "disk" in line
-        listing = subprocess.run(
-            [str(Path(sys.executable).with_name("rerun")), "rrd", "print", str(out)],
-            capture_output=True,
-            text=True,
-            env=ENV,
-            timeout=60,
-        )
+        listing = rrd_print(out)
         # Rerun reads the layers of the scans written before the disk filled (which ones made it depends on timing)
         assert listing.returncode == 0 and ("/world/robot" in listing.stdout or "/world/scan/" in listing.stdout)
 
@@ -327,13 +321,7 @@ def test_7_sigkill_loses_only_the_scan_in_flight(long_log: Path, tmp_path: Path)
     written = json.loads(info.stdout)["point_clouds"][0]["scans"]
     # MCAP chunks of a few scans are buffered; the poses lag the scans by at most the one in flight
     assert written <= len(tum) + 1
-    listing = subprocess.run(
-        [str(Path(sys.executable).with_name("rerun")), "rrd", "print", str(out)],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=60,
-    )
+    listing = rrd_print(out)
     assert "/world/scan/labels" in listing.stdout
 
 
