@@ -231,20 +231,44 @@ def block_sums(points: np.ndarray, values: np.ndarray, cell_m: float) -> np.ndar
     return total[inverse.reshape(-1)]
 
 
+def _moments(centred: np.ndarray) -> np.ndarray:
+    """Per point (N, 13): 1, x, y, z and the nine products x_i x_j — summed over any grouping, its PCA."""
+    outer = (centred[:, :, None] * centred[:, None, :]).reshape(-1, 9)
+    return np.concatenate([np.ones((len(centred), 1)), centred, outer], axis=1)
+
+
+def _pca_of_moments(total: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mean (G, 3), unit normal (G, 3) (sign-agnostic), curvature (G,) = smallest eigenvalue / sum and count
+    (G,) of groups from their summed `_moments` (G, 13)."""
+    count = total[:, 0]
+    n = np.maximum(count, 1)  # empty groups: zeros, not NaN
+    mean = total[:, 1:4] / n[:, None]
+    cov = total[:, 4:].reshape(-1, 3, 3) / n[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    evals, evecs = np.linalg.eigh(cov)
+    sums = evals.sum(axis=1)
+    curvature = np.where(sums > 0, np.clip(evals[:, 0], 0, None) / np.where(sums > 0, sums, 1), 0.0)
+    return mean, evecs[:, :, 0], curvature, count
+
+
 def block_pca(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """PCA over the 3×3×3 block of `cell_m` voxels around each point (as the crack study did):
     unit normals (N, 3) (sign-agnostic), curvature (N,) = smallest eigenvalue / sum, and point count (N,)."""
     pts = np.asarray(points, np.float64)
     q = pts - pts.mean(axis=0)
-    stats = np.concatenate([np.ones((len(q), 1)), q, (q[:, :, None] * q[:, None, :]).reshape(-1, 9)], axis=1)
-    total = block_sums(q, stats, cell_m)
-    count = total[:, 0]
-    mean = total[:, 1:4] / count[:, None]
-    cov = total[:, 4:].reshape(-1, 3, 3) / count[:, None, None] - mean[:, :, None] * mean[:, None, :]
-    evals, evecs = np.linalg.eigh(cov)
-    sums = evals.sum(axis=1)
-    curvature = np.where(sums > 0, np.clip(evals[:, 0], 0, None) / np.where(sums > 0, sums, 1), 0.0)
-    return evecs[:, :, 0], curvature, count
+    _, normals, curvature, count = _pca_of_moments(block_sums(q, _moments(q), cell_m))
+    return normals, curvature, count
+
+
+def label_pca(points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """PCA of the points of each label 0..max: centroid (L, 3), unit normal (L, 3) (sign-agnostic), curvature
+    (L,) = smallest eigenvalue / sum, and point count (L,)."""
+    pts = np.asarray(points, np.float64)
+    origin = pts.mean(axis=0)  # conditioning
+    q = pts - origin
+    total = np.zeros((int(labels.max()) + 1, 13))
+    np.add.at(total, labels, _moments(q))
+    mean, normals, curvature, count = _pca_of_moments(total)
+    return mean + origin, normals, curvature, count
 
 
 def point_spacing(points: np.ndarray, sample: int = 20_000, seed: int = 0) -> float:

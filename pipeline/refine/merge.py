@@ -14,26 +14,11 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from aftershock.pipeline.geometry import label_pca
 from aftershock.pipeline.refine.features import VoxelCloud
 
 MAX_FLATNESS: Final = 0.01  # smallest eigenvalue / sum over a whole segment: a plane, not a box or a chair
 MIN_CONTACTS: Final = 3  # touching voxel pairs between two segments before they may merge
-
-
-def segment_planes(points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per label 0..max: centroid (L, 3), unit normal (L, 3) and flatness (L,) of its points (1 when < 3 points)."""
-    n = int(labels.max()) + 1
-    p = points - points.mean(axis=0)  # conditioning
-    count = np.bincount(labels, minlength=n).astype(np.float64)
-    safe = np.maximum(count, 1)[:, None]
-    mean = np.stack([np.bincount(labels, p[:, i], n) for i in range(3)], axis=1) / safe
-    outer = np.stack([np.bincount(labels, p[:, i] * p[:, j], n) for i in range(3) for j in range(3)], axis=1)
-    cov = (outer / safe).reshape(n, 3, 3) - mean[:, :, None] * mean[:, None, :]
-    evals, evecs = np.linalg.eigh(cov)
-    total = evals.sum(axis=1)
-    flatness = np.where(total > 1e-12, evals[:, 0].clip(min=0) / np.where(total > 1e-12, total, 1.0), 1.0)
-    flatness[count < 3] = 1.0
-    return mean, evecs[:, :, 0], flatness
 
 
 def merge_coplanar(vc: VoxelCloud, labels: np.ndarray, max_angle_deg: float, max_offset_m: float) -> np.ndarray:
@@ -46,7 +31,8 @@ def merge_coplanar(vc: VoxelCloud, labels: np.ndarray, max_angle_deg: float, max
     if len(pairs) == 0:
         return labels
     pairs = pairs[contacts >= MIN_CONTACTS]
-    centre, normal, flatness = segment_planes(vc.points, labels)
+    centre, normal, flatness, count = label_pca(vc.points, labels)
+    flatness = np.where(count >= 3, flatness, 1.0)  # fewer than 3 points: no plane
     i, j = pairs[:, 0], pairs[:, 1]
     d = centre[j] - centre[i]
     ok = (flatness[i] < MAX_FLATNESS) & (flatness[j] < MAX_FLATNESS)
