@@ -231,7 +231,7 @@ def block_sums(points: np.ndarray, values: np.ndarray, cell_m: float) -> np.ndar
     return total[inverse.reshape(-1)]
 
 
-def _moments(centred: np.ndarray) -> np.ndarray:
+def point_moments(centred: np.ndarray) -> np.ndarray:
     """Per point (N, 13): 1, x, y, z and the nine products x_i x_j — summed over any grouping, its PCA."""
     outer = (centred[:, :, None] * centred[:, None, :]).reshape(-1, 9)
     return np.concatenate([np.ones((len(centred), 1)), centred, outer], axis=1)
@@ -239,7 +239,7 @@ def _moments(centred: np.ndarray) -> np.ndarray:
 
 def _pca_of_moments(total: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Mean (G, 3), unit normal (G, 3) (sign-agnostic), curvature (G,) = smallest eigenvalue / sum and count
-    (G,) of groups from their summed `_moments` (G, 13)."""
+    (G,) of groups from their summed `point_moments` (G, 13)."""
     count = total[:, 0]
     n = np.maximum(count, 1)  # empty groups: zeros, not NaN
     mean = total[:, 1:4] / n[:, None]
@@ -255,7 +255,7 @@ def block_pca(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray
     unit normals (N, 3) (sign-agnostic), curvature (N,) = smallest eigenvalue / sum, and point count (N,)."""
     pts = np.asarray(points, np.float64)
     q = pts - pts.mean(axis=0)
-    _, normals, curvature, count = _pca_of_moments(block_sums(q, _moments(q), cell_m))
+    _, normals, curvature, count = _pca_of_moments(block_sums(q, point_moments(q), cell_m))
     return normals, curvature, count
 
 
@@ -266,7 +266,7 @@ def label_pca(points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.nd
     origin = pts.mean(axis=0)  # conditioning
     q = pts - origin
     total = np.zeros((int(labels.max()) + 1, 13))
-    np.add.at(total, labels, _moments(q))
+    np.add.at(total, labels, point_moments(q))
     mean, normals, curvature, count = _pca_of_moments(total)
     return mean + origin, normals, curvature, count
 

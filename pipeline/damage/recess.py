@@ -14,7 +14,7 @@ from typing import Final
 
 import numpy as np
 
-from aftershock.pipeline.geometry import block_sums
+from aftershock.pipeline.geometry import block_sums, point_moments
 from aftershock.pipeline.types import Crack
 
 DEPTH_PERCENTILE: Final = 90.0
@@ -29,7 +29,7 @@ def depth_z(points: np.ndarray, candidates: np.ndarray, cell_m: float) -> np.nda
     q = np.asarray(points, np.float64)
     q = q - q.mean(axis=0)
     sound = ~np.asarray(candidates, bool)
-    stats = np.concatenate([np.ones((len(q), 1)), q, (q[:, :, None] * q[:, None, :]).reshape(-1, 9)], axis=1)
+    stats = point_moments(q)
     total = block_sums(q, stats * sound[:, None], cell_m)
     few = total[:, 0] < _MIN_SURFACE
     if few.any():
