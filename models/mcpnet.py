@@ -125,6 +125,7 @@ def default_weights(kind: str = "mcpnet") -> Path:
 
 
 REBUILD_HINT: Final = "rebuild it with `aftershock train mcpnet --force`"
+FLOOR_PERCENTILE: Final = 1.0
 
 
 def save_weights(path: Path, model: nn.Module, cfg: NetConfig, figures: dict[str, Any]) -> None:
@@ -181,6 +182,14 @@ def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, Ne
         raise InputError(f"weights do not fit the network ({str(exc).splitlines()[0]}); {REBUILD_HINT}", path) from None
     model.eval()
     return model, cfg, blob.get("figures", {})
+
+
+def floor_height(world_points: np.ndarray) -> float:
+    """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns). One
+    function for training and labelling, so that height above the floor means the same in both."""
+    if not len(world_points):
+        return 0.0
+    return float(np.percentile(world_points[:, 2], FLOOR_PERCENTILE))
 
 
 def point_features(positions: np.ndarray, colors: np.ndarray | None, origin: np.ndarray, floor_z: float) -> np.ndarray:

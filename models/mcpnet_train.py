@@ -25,6 +25,7 @@ from aftershock.models import transfer_split as split
 from aftershock.models.mcpnet import (
     MCPNet,
     context_draws,
+    floor_height,
     num_parameters,
     point_features,
     point_inputs,
@@ -74,13 +75,6 @@ POINTNET_CLOUDS_PER_STEP: Final = 8
 POINTNET_SCAN_SHARE: Final = 0.25  # scans (clouds) drawn per PointNet epoch, as a share of all training scans
 TEMPORAL_WINDOW_S: Final = 0.1
 SPATIAL_WINDOW_M: Final = 0.5
-
-
-def floor_height(world_points: np.ndarray) -> float:
-    """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns)."""
-    if not len(world_points):
-        return 0.0
-    return float(np.percentile(world_points[:, 2], 1.0))
 
 
 @dataclass(slots=True)

@@ -21,6 +21,7 @@ from aftershock.models.mcpnet import (
     context_draws,
     context_features,
     default_weights,
+    floor_height,
     load_model,
     point_features,
     point_inputs_of_rows,
@@ -35,7 +36,6 @@ NAME: Final = "mcpnet"
 NO_CONTEXT: Final = "mcpnet-nocontext"
 NO_COLOR: Final = "mcpnet-nocolor"  # the colour-free network's weights: models/weights/mcpnet_nocolor.pt
 CHUNK: Final = 4096  # voxels per forward pass; bounds memory at about 4096 x 50 x 200 floats
-FLOOR_PERCENTILE: Final = 1.0
 RELABEL_PER_NEW: Final = 4  # with relabelling on: at most this many older voxels re-classed per new voxel
 EMBED_REACH_M: Final = 1.5  # embed_cloud: each point is seen from at most this far away, as in a scan
 
@@ -48,13 +48,6 @@ def distinct_pairs(ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keep[:, 1:] &= s[:, 1:] != s[:, :-1]
     owner, _ = np.nonzero(keep)
     return owner.astype(np.int64), s[keep].astype(np.int64)
-
-
-def floor_height(world_points: np.ndarray) -> float:
-    """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns)."""
-    if not len(world_points):
-        return 0.0
-    return float(np.percentile(world_points[:, 2], FLOOR_PERCENTILE))
 
 
 class MCPNetLabeller:

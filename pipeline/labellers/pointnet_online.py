@@ -18,9 +18,8 @@ from typing import Final
 import numpy as np
 import torch
 
-from aftershock.models.mcpnet import default_weights, load_model, point_features
+from aftershock.models.mcpnet import default_weights, floor_height, load_model, point_features
 from aftershock.pipeline.config import Config, Environment
-from aftershock.pipeline.labellers.mcpnet import floor_height
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import VoxelMap
 
