@@ -6,6 +6,11 @@ the sweep) but is done here in numpy for *every* point, so the world points stay
 per-point arrays; KISS-ICP then gets the deskewed scan and an empty time array (its own deskew would also
 drop out-of-range points and break that alignment).
 
+With `register.level` the map is then turned once so that the floor under the first scan is level: KISS-ICP's
+world is the first scan's sensor frame, which a tilted mount tilts (the networks measure heights and
+verticality in a level frame). A turn under `LEVEL_MIN_DEG`, or a first scan without a floor to go by, leaves
+the sensor's frame as it is.
+
 A scan that cannot be aligned (too few points in range, a non-finite pose, or an ICP correction far from
 the constant-velocity prediction) is reported on the frame (`registration_ok = False` and a note) and the
 stream goes on; the labelling stage leaves such frames out of the map.
@@ -25,6 +30,7 @@ from kiss_icp.kiss_icp import KissICP
 from scipy.spatial.transform import Rotation
 
 from aftershock.pipeline.config import Environment, RegisterConfig
+from aftershock.pipeline.geometry import floor_normal, rotation_to_z
 from aftershock.pipeline.types import Frame, Scan
 
 log = logging.getLogger(__name__)
@@ -32,6 +38,8 @@ log = logging.getLogger(__name__)
 MIN_POINTS: Final = 100
 DESKEW_STEPS: Final = 1000  # fewer points in range than this and ICP has nothing to hold on to
 INDOOR_GUESS_RANGE_M: Final = 15.0  # 90 % of the first scan's returns nearer than this -> indoor
+LEVEL_HEIGHT_M: Final = (0.25, 3.0)  # the floor sought lies this far below the sensor (mounts of 0.3-1.8 m)
+LEVEL_MIN_DEG: Final = 1.0  # below this the floor fit's own noise is as large as the turn: the map stays as it is
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,6 +197,8 @@ class Registrar:
         self.frames = 0
         self._last_stamp_ns: int | None = None
         self._fraction = 0.0
+        self.level: np.ndarray | None = None  # (4, 4) the turn that levels the map, once found
+        self.level_deg = 0.0  # how far the first scan's floor was from level (0 without levelling)
 
     def register(self, frame: Frame) -> Frame:
         scan = frame.scan
@@ -199,7 +209,10 @@ class Registrar:
         if self._fraction > 0:
             points = deskew(points, scan.times, sweep_motion(delta, self._fraction))
         ranges = norms(points)
-        usable = int(((ranges > self.settings.min_range_m) & (ranges < self.settings.max_range_m)).sum())
+        in_range = (ranges > self.settings.min_range_m) & (ranges < self.settings.max_range_m)
+        usable = int(in_range.sum())
+        if self.frames == 0 and self.cfg.level:
+            self._find_level(points[in_range])
         if usable < MIN_POINTS:
             self._skip(frame, prediction, f"only {usable} points within range; pose predicted from motion")
         else:
@@ -217,6 +230,8 @@ class Registrar:
                     )
                     # The motion since the last scan is not to be trusted as a prediction of the next one.
                     self.kiss.last_delta = np.eye(4)
+        if self.level is not None:
+            frame.pose = self.level @ frame.pose
         frame.world_points = transform(frame.pose, points)
         frame.stamp_pose = self._stamp_pose(frame)
         self.frames += 1
@@ -224,6 +239,21 @@ class Registrar:
         if not frame.registration_ok:
             log.warning("scan %d: %s", scan.seq, frame.registration_note)
         return frame
+
+    def _find_level(self, points: np.ndarray) -> None:
+        """The turn that makes the floor under the first scan level (its sweep is not deskewed: no motion yet)."""
+        normal = floor_normal(points, self.cfg.level_max_tilt_deg, LEVEL_HEIGHT_M)
+        if normal is None:
+            log.info("no floor found in the first scan: the map keeps the sensor's frame (z along its axis)")
+            return
+        self.level_deg = float(np.rad2deg(np.arccos(np.clip(normal[2], -1.0, 1.0))))
+        if self.level_deg < LEVEL_MIN_DEG:
+            return
+        self.level = np.eye(4)
+        self.level[:3, :3] = rotation_to_z(normal)
+        log.info(
+            "the first scan's floor is tilted %.1f deg from the sensor's axis: the map is levelled", self.level_deg
+        )
 
     def _sweep_fraction(self, scan: Scan) -> float:
         """Share of the motion between the previous scan and this one that happened during this sweep
