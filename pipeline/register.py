@@ -6,7 +6,7 @@ the sweep) but is done here in numpy for *every* point, so the world points stay
 per-point arrays; KISS-ICP then gets the deskewed scan and an empty time array (its own deskew would also
 drop out-of-range points and break that alignment).
 
-With `register.level` the map is then turned once so that the floor under the first scan is level: KISS-ICP's
+With `registration.level` the map is then turned once so that the floor under the first scan is level: KISS-ICP's
 world is the first scan's sensor frame, which a tilted mount tilts (the networks measure heights and
 verticality in a level frame). A turn under `LEVEL_MIN_DEG`, or a first scan without a floor to go by, leaves
 the sensor's frame as it is.
