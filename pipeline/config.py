@@ -240,6 +240,11 @@ class CrackConfig(_Section):
     # recessed in their scans); depth against the plane of the 3 x 3 x 3 block of depth_cell_m voxels
     depth_sigmas: NonNegative = 0.0
     depth_cell_m: Positive = 0.02
+    # a reported crack is narrow: at least min_area_elongation times longer than its mean width (its points' area
+    # over its length; 0 = no test) and holding at most max_share of the element's points (1 = no test): stains and
+    # shaded patches or faces are broad (both calibrated on simulated elements, chosen leave-one-object-out)
+    min_area_elongation: NonNegative = 0.0
+    max_share: Fraction = 1.0
     grow_m: NonNegative = (
         0.03  # after the support rule (0 = off), points this close to a crack whose smoothed score ...
     )

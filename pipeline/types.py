@@ -177,6 +177,7 @@ class Crack:
     width_resolved: bool = True  # False: narrower than the point spacing; width_m is then the spacing
     max_width_m: float = float("nan")  # widest part of the opening (90th percentile over the crack's slices)
     rect_width_m: float = float("nan")  # short side of the minimum-area rectangle (the whole group's extent)
+    area_width_m: float = float("nan")  # mean width: its points' area (points x spacing^2) over its length
     depth_contrast: float = float("nan")  # how far its deepest points lie behind the surface around, in noise units
 
 

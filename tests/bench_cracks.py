@@ -236,9 +236,12 @@ WEIGHTS: Final = {
 }
 SIM_KINDS: Final = ("column", "wall", "slab", "beam")
 INTACT_MAX: Final = 0.01  # at most 1 % of an intact element's points flagged
-CALIBRATION_SEEDS: Final = (101, 102, 103)  # intact elements the depth limit is calibrated on
+CALIBRATION_SEEDS: Final = (101, 102, 103)  # elements the depth limit and the narrowness test are calibrated on
 TEST_SEEDS: Final = tuple(range(110, 115))  # intact elements scored once, with the chosen default only
 DEPTH_GRID: Final = tuple(np.round(np.arange(1.0, 8.01, 0.25), 2))
+SHARE_GRID: Final = (1.0, 0.5, 0.3, 0.2, 0.15, 0.1)  # max_share candidates, loosest first
+ELONGATION_GRID: Final = (0.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0)  # min_area_elongation candidates, loosest first
+MAX_F1_LOSS: Final = 0.01  # the narrowness test may cost the simulated cracked calibration elements this much F1
 
 
 def _sim_spacing(kind: str) -> float:
@@ -272,6 +275,38 @@ def _calibrate_depth(cfg: CrackConfig, intact: list[CrackResult]) -> float:
     return float(DEPTH_GRID[-1])
 
 
+def _narrow_outcome(result: CrackResult, max_share: float, min_elongation: float) -> float:
+    """F1 (an element with cracks) or share of points flagged (an intact one) had the narrowness test
+    (`measure.keep_narrow`) been applied to a run without it; crack points are those of reported cracks."""
+    n = len(result.cloud)
+    keep = np.r_[
+        False, [c.num_points <= max_share * n and c.length_m >= min_elongation * c.area_width_m for c in result.cracks]
+    ]
+    flagged = keep[result.crack_ids]
+    truth = result.truth
+    assert truth is not None
+    if not truth.any():
+        return float(flagged.mean())
+    tp = float((flagged & truth).sum())
+    return 2 * tp / max(float(flagged.sum() + truth.sum()), 1.0)
+
+
+def _calibrate_narrow(cracked: list[CrackResult], intact: list[CrackResult]) -> tuple[float, float]:
+    """(max_share, min_area_elongation) on `SHARE_GRID` x `ELONGATION_GRID` that flags the fewest points of the
+    simulated intact calibration elements while costing their cracked twins at most `MAX_F1_LOSS` mean F1 (runs
+    without the test; the loosest pair wins a tie)."""
+    base = np.mean([_narrow_outcome(r, 1.0, 0.0) for r in cracked])
+    best, best_flag = (1.0, 0.0), np.inf
+    for share in SHARE_GRID:
+        for k in ELONGATION_GRID:
+            if base - np.mean([_narrow_outcome(r, share, k) for r in cracked]) > MAX_F1_LOSS:
+                continue
+            flag = float(np.mean([_narrow_outcome(r, share, k) for r in intact]))
+            if flag < best_flag - 1e-12:
+                best, best_flag = (share, k), flag
+    return best
+
+
 def _choose(table: dict[str, dict[str, dict[str, float]]], reals: list[str], sims: list[str], intact: list[str]) -> str:
     """The setting with the best mean F1 (the given real elements and the simulated cracked ones weighing half
     each) less the mean share of the intact simulated elements' points it flags and the share by which it
@@ -294,7 +329,8 @@ def test_leave_one_object_out(
     """Every crack setting chosen with the element it is reported on left out: for each real element, the
     setting that is best on the other two and on simulated elements (cracked and intact, seed 100 of each
     kind, which CrackEmbed never trained on), then scored once on the left-out element. The depth limit of each
-    rule is calibrated on other simulated intact elements (seeds 101-103); the chosen default is then scored
+    rule is calibrated on other simulated intact elements (seeds 101-103), the narrowness test (`max_share`,
+    `min_area_elongation`) on those and their cracked twins; the chosen default is then scored
     once on intact elements never used (seeds 110-114). The in-sample choice (all three) must be the shipped
     default. Features and detector scores are computed once per element and weights."""
     import hashlib
@@ -332,6 +368,7 @@ def test_leave_one_object_out(
         for intact in (False, True):
             objects[f"{kind}-{'intact' if intact else 'cracked'}"] = sim(kind, 100, intact)
     calibration = [sim(kind, seed, True) for kind in SIM_KINDS for seed in CALIBRATION_SEEDS]
+    calibration_cracked = [sim(kind, seed, False) for kind in SIM_KINDS for seed in CALIBRATION_SEEDS]
     reals = list(OBJECTS)
     sims = [f"{k}-cracked" for k in SIM_KINDS]
     intact = [f"{k}-intact" for k in SIM_KINDS]
@@ -339,12 +376,19 @@ def test_leave_one_object_out(
     for rule, over in RULES.items():
         for wname, weights in WEIGHTS.items():
             base = {**over, "edge_spacings": 0.0, "cracks_only": True, "weights": weights}
-            limit = _calibrate_depth(
-                CrackConfig(**base), [find_cracks(c, CrackConfig(**base), m) for c, m in calibration]
+            intact_runs = [find_cracks(c, CrackConfig(**base), m) for c, m in calibration]
+            limit = _calibrate_depth(CrackConfig(**base), intact_runs)
+            share, k = _calibrate_narrow(
+                [find_cracks(c, CrackConfig(**base), m) for c, m in calibration_cracked], intact_runs
             )
+            narrow = {"max_share": share, "min_area_elongation": k}
             tag = "" if len(WEIGHTS) == 1 else f", {wname} CrackEmbed"
-            settings[f"{rule}, no depth test{tag}"] = {**base, "depth_sigmas": 0.0}
-            settings[f"{rule}, depth >= {limit:g} sigma{tag}"] = {**base, "depth_sigmas": limit}
+            test = f"share <= {share:g}, elongation >= {k:g}"
+            off = {"max_share": 1.0, "min_area_elongation": 0.0}
+            settings[f"{rule}, no depth test{tag}"] = {**base, "depth_sigmas": 0.0, **off}
+            settings[f"{rule}, no depth test, {test}{tag}"] = {**base, "depth_sigmas": 0.0, **narrow}
+            settings[f"{rule}, depth >= {limit:g} sigma{tag}"] = {**base, "depth_sigmas": limit, **off}
+            settings[f"{rule}, depth >= {limit:g} sigma, {test}{tag}"] = {**base, "depth_sigmas": limit, **narrow}
     table: dict[str, dict[str, dict[str, float]]] = {}
     for label, override in settings.items():
         cfg = CrackConfig(**override)
@@ -363,7 +407,7 @@ def test_leave_one_object_out(
     print("simulated cracked (seed 100 of each kind) F1; simulated intact (seed 100) flagged (mean / worst)")
     for label, row in table.items():
         print(
-            f"  {label:52s} "
+            f"  {label:82s} "
             + "  ".join(f"{row[n]['f1']:.2f}/{row[n]['far'] * 100:4.1f}%/{row[n]['width'] * 1000:4.1f}" for n in reals)
             + f" | sim {np.mean([row[n]['f1'] for n in sims]):.3f} | intact "
             + f"{np.mean([row[n]['flag'] for n in intact]) * 100:.2f}%/"

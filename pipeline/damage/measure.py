@@ -259,6 +259,7 @@ def measure_cracks(
         ids[members] = len(cracks) + 1
         resolved = shape.width >= spacing_m
         width = max(shape.width, spacing_m)
+        area = len(members) * spacing_m**2  # each point stands for a spacing-sized square of the surface
         cracks.append(
             Crack(
                 instance_id=len(cracks) + 1,
@@ -272,9 +273,34 @@ def measure_cracks(
                 width_resolved=bool(resolved),
                 max_width_m=float(max(shape.max_width, spacing_m)),
                 rect_width_m=float(shape.rect_width),
+                area_width_m=float(area / max(shape.length, _EPS)),
             )
         )
     return cracks, ids
+
+
+def keep_cracks(cracks: list[Crack], ids: np.ndarray, keep: list[bool]) -> tuple[list[Crack], np.ndarray]:
+    """The cracks with `keep` True, renumbered 1..K in their order, and the per-point ids to match (the points of
+    the others are no crack, id 0)."""
+    new_id = np.zeros(len(cracks) + 1, np.int64)
+    kept: list[Crack] = []
+    for c, k in zip(cracks, keep, strict=True):  # one renumbering per crack
+        if k:
+            new_id[c.instance_id] = len(kept) + 1
+            c.instance_id = len(kept) + 1
+            kept.append(c)
+    return kept, new_id[ids]
+
+
+def keep_narrow(
+    cracks: list[Crack], ids: np.ndarray, points: int, max_share: float, min_elongation: float
+) -> tuple[list[Crack], np.ndarray]:
+    """The cracks that are narrow (`keep_cracks`): at least `min_elongation` times longer than their mean width
+    (`Crack.area_width_m`: area over length; a stain or a shaded patch is about as wide as it is long, however
+    its opening measures) and holding at most `max_share` of the element's `points` (a whole face that scores
+    high is lit differently, not cracked)."""
+    keep = [c.num_points <= max_share * points and c.length_m >= min_elongation * c.area_width_m for c in cracks]
+    return keep_cracks(cracks, ids, keep)
 
 
 @dataclass(frozen=True, slots=True)

@@ -14,6 +14,7 @@ from typing import Final
 
 import numpy as np
 
+from aftershock.pipeline.damage.measure import keep_cracks
 from aftershock.pipeline.geometry import block_sums, point_moments
 from aftershock.pipeline.types import Crack
 
@@ -49,14 +50,7 @@ def keep_recessed(
     cracks: list[Crack], ids: np.ndarray, z: np.ndarray, min_sigmas: float
 ) -> tuple[list[Crack], np.ndarray]:
     """Sets each crack's `depth_contrast` (the 90th percentile of `z` over its points); with `min_sigmas` > 0
-    only the cracks at least that recessed stay, renumbered 1..K in their order, and the points of the others
-    are no crack (id 0)."""
-    new_id = np.zeros(len(cracks) + 1, np.int64)
-    kept: list[Crack] = []
+    only the cracks at least that recessed stay (`keep_cracks`)."""
     for c in cracks:  # one percentile per crack
         c.depth_contrast = float(np.percentile(z[ids == c.instance_id], DEPTH_PERCENTILE))
-        if min_sigmas <= 0 or c.depth_contrast >= min_sigmas:
-            new_id[c.instance_id] = len(kept) + 1
-            c.instance_id = len(kept) + 1
-            kept.append(c)
-    return kept, new_id[ids]
+    return keep_cracks(cracks, ids, [min_sigmas <= 0 or c.depth_contrast >= min_sigmas for c in cracks])

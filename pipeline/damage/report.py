@@ -28,7 +28,7 @@ from aftershock.pipeline.damage.detectors import (
 )
 from aftershock.pipeline.damage.drift import DriftResult, measure_drift
 from aftershock.pipeline.damage.features import FeatureSet, compute_features, parse_features
-from aftershock.pipeline.damage.measure import Scores, fit_plane, measure_cracks, score, supported
+from aftershock.pipeline.damage.measure import Scores, fit_plane, keep_narrow, measure_cracks, score, supported
 from aftershock.pipeline.damage.recess import depth_z, keep_recessed
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import point_spacing, voxel_downsample
@@ -148,6 +148,7 @@ def crack_json(c: Crack) -> dict[str, Any]:
         "width_m": round(c.width_m, 4),
         "max_width_m": _round(c.max_width_m),
         "rectangle_width_m": _round(c.rect_width_m),
+        "area_width_m": _round(c.area_width_m),
         "depth_contrast": _round(c.depth_contrast),
         "points": c.num_points,
         "axis": [round(float(v), 4) for v in c.axis],
@@ -262,7 +263,8 @@ def find_cracks(
     )
     grouped = ids > 0
     cracks, ids = keep_recessed(cracks, ids, depth_z(part.points, mask, cfg.depth_cell_m), cfg.depth_sigmas)
-    mask &= (ids > 0) | ~grouped  # the points of flat candidates (stains, streaks, shade) are no crack either
+    cracks, ids = keep_narrow(cracks, ids, len(part), cfg.max_share, cfg.min_area_elongation)
+    mask &= (ids > 0) | ~grouped  # the points of flat or broad candidates (stains, streaks, shade) are no crack either
     if cfg.cracks_only:
         mask = ids > 0
     scores = None
