@@ -119,6 +119,33 @@ def test_blobs_are_not_cracks() -> None:
     assert not ids[blob].any() and ids[thin].all()
 
 
+def test_broad_patches_are_not_cracks() -> None:
+    """A speckled stain (a round patch of which 80 % of the points score high) can pass the opening-based blob
+    test, whose slices see strands as wide as the slices are long; its mean width (area over length) is about as
+    large as its length, so the narrowness test drops it and keeps a thin crack (mean width ≈ its opening).
+    A group holding half the element (a face lit differently) goes with `max_share`."""
+    from aftershock.pipeline.damage.measure import keep_narrow
+
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.arange(0, 1, 0.003), np.arange(0, 1, 0.003), indexing="ij")
+    pts = (
+        np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+        + np.c_[rng.uniform(-0.0006, 0.0006, (u.size, 2)), np.zeros(u.size)]
+    )
+    stain = (np.hypot(pts[:, 0] - 0.3, pts[:, 1] - 0.3) < 0.1) & (rng.random(len(pts)) < 0.8)
+    thin = (np.abs(pts[:, 1] - 0.75) <= 0.0045) & (pts[:, 0] > 0.15) & (pts[:, 0] < 0.85)
+    cracks, ids = measure_cracks(pts, stain | thin, 0.01, 20, 0.0032, 0.003, min_elongation=3.0)
+    assert len(cracks) == 2  # the stain passes the opening-based test
+    crack = next(c for c in cracks if c.length_m > 0.6)
+    assert crack.area_width_m == pytest.approx(0.009, abs=0.003)
+    kept, kept_ids = keep_narrow(cracks, ids, len(pts), 1.0, 5.0)
+    assert len(kept) == 1 and kept[0].length_m > 0.6 and kept_ids[thin].all() and not kept_ids[stain & ~thin].any()
+    face, apart = pts[:, 0] < 0.5, thin & (pts[:, 0] > 0.55)
+    cracks, ids = measure_cracks(pts, face | apart, 0.01, 20, 0.0032, 0.003)
+    kept, kept_ids = keep_narrow(cracks, ids, len(pts), 0.2, 0.0)
+    assert len(cracks) == 2 and len(kept) == 1 and not kept_ids[face].any() and kept_ids[apart].all()
+
+
 def _patch(n: int = 4000, seed: int = 0) -> LabelledCloud:
     rng = np.random.default_rng(seed)
     pts = np.c_[rng.uniform(0, 0.5, (n, 2)), rng.normal(0, 0.0005, n)]
