@@ -242,7 +242,8 @@ class CrackConfig(_Section):
     depth_cell_m: Positive = 0.02
     # a reported crack is narrow: at least min_area_elongation times longer than its mean width (its points' area
     # over its length; 0 = no test) and holding at most max_share of the element's points (1 = no test): stains and
-    # shaded patches or faces are broad (both calibrated on simulated elements, chosen leave-one-object-out)
+    # shaded patches or faces are broad. Off: calibrated on simulated elements (0.3, 6) the test drops the real
+    # slab's wide crack bands and loses leave-one-object-out (bench_cracks with BENCH_NARROW=1, README)
     min_area_elongation: NonNegative = 0.0
     max_share: Fraction = 1.0
     grow_m: NonNegative = (
