@@ -187,6 +187,10 @@ class LRGNetConfig(_Section):
     # join; 0 turns it off. 5 deg / 5 cm: best of 3/0.03, 5/0.05, 10/0.1, 20/0.1 on validation rooms (README).
     merge_angle_deg: NonNegative = 5.0
     merge_offset_m: NonNegative = 0.05
+    # Before it, segments are cut at creases (pipeline.refine.merge.split_creases): flat parts of at least this many
+    # voxels, smooth within this angle, become their own segments; 0 turns it off. Chosen on validation rooms (README).
+    crease_angle_deg: NonNegative = 15.0
+    crease_min_voxels: Count = 50
     # Baselines run beside LRGNet (pipeline.refine.baselines)
     baseline_normal_angle_deg: Angle = 10.0  # threshold region growing: normals within this angle (tuned)
     baseline_color_distance: NonNegative = 0.12  # ... and RGB (0..1) closer than this

@@ -35,7 +35,7 @@ from aftershock.pipeline.refine import LAYOUTS, baseline_cloud, load_network, re
 from aftershock.pipeline.refine.baselines import Baseline
 from aftershock.pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
 from aftershock.pipeline.refine.grow import Grower, Growth, seed_order
-from aftershock.pipeline.refine.merge import merge_coplanar
+from aftershock.pipeline.refine.merge import merge_coplanar, split_creases
 from aftershock.pipeline.types import LabelledCloud
 
 
@@ -332,6 +332,25 @@ def test_coplanar_pieces_merge_and_other_segments_do_not() -> None:
     assert np.array_equal(merge_coplanar(vc, truth, 5.0, 0.05), truth)  # nothing to merge
 
 
+def test_a_segment_round_a_crease_is_cut_and_small_faces_stay_whole() -> None:
+    """Floor and both walls grown as one segment come apart at their edges (each keeps most of its voxels in a
+    segment of its own); a box whose faces are under the size limit stays one segment, while a face of the other
+    box reaches it (50 voxels: 0.6 x 0.65 m, a table top) and comes off; nothing else moves."""
+    cloud = small_room()
+    vc = voxelise(cloud, 0.1)
+    truth = voxel_truth(vc, cloud)
+    labels = np.where(np.isin(truth, (1, 2, 3)), 1, truth)  # the structure leaked into one segment
+    cut = split_creases(vc, labels, 15.0, 50)
+    main = [np.bincount(cut[truth == t]).argmax() for t in (1, 2, 3)]
+    assert len(set(main)) == 3
+    for t, m in zip((1, 2, 3), main, strict=True):
+        assert np.mean(cut[truth == t] == m) > 0.8
+    assert np.array_equal(cut[truth == 5], labels[truth == 5])
+    assert len(np.unique(cut[truth == 4])) == 2
+    assert np.array_equal(split_creases(vc, truth, 15.0, 60), truth)  # one plane per segment: nothing to cut
+    assert np.array_equal(split_creases(vc, labels, 15.0, 10_000), labels)  # no part that large
+
+
 # ----------------------------------------------------------------------------- baselines
 @pytest.mark.parametrize("name", [Baseline.THRESHOLD, Baseline.SMOOTHNESS, Baseline.FPFH])
 def test_baselines_segment_a_simple_room(name: Baseline) -> None:
@@ -392,7 +411,7 @@ def test_weights_of_the_older_layout_read_its_first_columns(tmp_path: Path) -> N
     torch.manual_seed(0)
     net13 = LRGNet(13)
     save_weights(path, net13, {**weight_settings(LRGNetConfig()), "features": 13, "feature_version": 1}, {})
-    cfg = LRGNetConfig(weights=str(path), max_steps=6, merge_angle_deg=0)  # growth alone, no consolidation
+    cfg = LRGNetConfig(weights=str(path), max_steps=6, merge_angle_deg=0, crease_angle_deg=0)  # growth alone
     loaded = load_network(cfg)
     assert loaded.in_features == 13
     cloud = small_room()

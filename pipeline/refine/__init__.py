@@ -22,7 +22,7 @@ from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
 from aftershock.pipeline.refine.features import NUM_FEATURES, VoxelCloud, voxelise
 from aftershock.pipeline.refine.grow import Grower, Search
-from aftershock.pipeline.refine.merge import merge_coplanar
+from aftershock.pipeline.refine.merge import merge_coplanar, split_creases
 from aftershock.pipeline.types import LabelledCloud
 
 DEFAULT_WEIGHTS: Final = WEIGHTS_DIR / "lrgnet.pt"
@@ -90,6 +90,8 @@ def refine_cloud(
     finally:
         torch.set_num_threads(threads)
     labels = seg.labels
+    if cfg.crease_angle_deg > 0:
+        labels = split_creases(vc, labels, cfg.crease_angle_deg, cfg.crease_min_voxels)
     if cfg.merge_angle_deg > 0:
         labels = merge_coplanar(vc, labels, cfg.merge_angle_deg, cfg.merge_offset_m)
     labels = attach_small_segments(vc.points, labels, cfg.min_segment_points)
