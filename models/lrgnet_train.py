@@ -1,22 +1,18 @@
 """Train LRGNet from simulated region growing on the simulator's labelled scenes, seeded, on a CPU.
 
-From random seeds, regions grow towards the seed's true object while deliberately making mistakes (each decision
-flipped with a probability of 0.2, 0.3 or 0.4 per seed, falling by 0.01 per step), so the network sees and
-learns to undo wrong additions. Every step yields one sample: I inliers and J neighbours (sampled with
-replacement when fewer) with their true remove/add masks. Flips and 90° rotations about z are applied per sample
-at batch time. Two recipes draw the rooms:
+Training data: rooms of the randomised simulator's training generators (`office`, `disaster`, `hall`; `wing`
+stays out, see `models.transfer_split`), each building repainted with one of the simulator's palettes, half the
+rooms without colour (colour features zeroed, exactly as inference does on a cloud without colour), every
+room's points jittered and thinned anew. From random seeds, regions grow towards the seed's true object while
+deliberately making mistakes (each decision flipped with a probability of 0.2, 0.3 or 0.4 per seed, falling by
+0.01 per step), so the network sees and learns to undo wrong additions. Every step yields one sample: I inliers
+and J neighbours (sampled with replacement when fewer) with their true remove/add masks. Flips and 90° rotations
+about z are applied per sample at batch time.
 
-- `Recipe.SHIPPED` (`aftershock train lrgnet`, the shipped `lrgnet.pt`): rooms of five `office` and five
-  `disaster` buildings in their own colours, two rooms of each held back for validation, the 13 features of
-  layout 1 (before the local shape), 2 epochs.
-- `Recipe.TRANSFER` (`aftershock train lrgnet-transfer --out FILE`, the #12 candidate, not shipped: it lost on
-  validation, see the README): rooms of the randomised simulator's training generators (`office`, `disaster`,
-  `hall`; `wing` stays out, see `models.transfer_split`), each building repainted with one of the simulator's
-  palettes, half the rooms without colour (colour features zeroed, exactly as inference does on a cloud without
-  colour), every room's points jittered and thinned anew, all 16 features; its validation rooms come from whole
-  buildings no training room comes from (`VALIDATION_SEEDS`), with and without colour.
-
-Both write a checkpoint after every epoch in the cache.
+Validation: whole buildings of the training generators that no training room comes from (`VALIDATION_SEEDS`),
+with and without colour; every setting was chosen there. `aftershock train lrgnet` (seed 0) writes the shipped
+`lrgnet.pt`, with a checkpoint after every epoch in the cache. The weights shipped before (13 features, office
+and disaster in their own colours) came from `git show d6c0f84:models/lrgnet_train.py`.
 """
 
 from __future__ import annotations
@@ -27,7 +23,6 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -39,7 +34,6 @@ from aftershock.models import transfer_split as split
 from aftershock.models.lrgnet import LRGNet, num_parameters, save_weights
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.config import LRGNetConfig
-from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.refine.features import VoxelCloud, canonical_normals, region_centre, voxelise
 from aftershock.pipeline.types import LabelledCloud
 
@@ -48,25 +42,11 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-
-class Recipe(StrEnum):
-    SHIPPED = "shipped"
-    TRANSFER = "transfer"
-
-
 GENERATORS: Final = split.TRAIN_GENERATORS
 # Buildings: training, validation and held-out (test) seeds are disjoint, fixed here so that runs compare.
 TRAIN_SEEDS: Final = {"office": (100, 101, 102), "disaster": (100, 101, 102, 103, 104), "hall": split.TRAIN_SEEDS}
 VALIDATION_SEEDS: Final = {g: split.VALIDATION_SEEDS[:1] for g in GENERATORS}
 HELDOUT_SEEDS: Final = {"office": (901,), "disaster": (951,), "hall": split.TEST_SEEDS[:1]}
-# The shipped recipe: office and disaster buildings in their own colours (111 and 73 rooms), two rooms of each held
-# back for validation, the 13 features of layout 1, at most SHIPPED_SAMPLES samples (1,400 steps in 2 epochs).
-SHIPPED_TRAIN_SEEDS: Final = {"office": (101, 102, 103, 104, 105), "disaster": (201, 202, 203, 204, 205)}
-SHIPPED_FEATURES: Final = 13
-SHIPPED_FEATURE_VERSION: Final = 1
-SHIPPED_VAL_ROOMS: Final = 2  # rooms of each training building held back
-SHIPPED_SAMPLES: Final = 44_800
-SHIPPED_VAL_SAMPLES: Final = 1_000
 CACHE_VERSION: Final = 1
 RAW_SPACING_M: Final = 0.1  # spacing of the simulator's static cloud (one point per voxel at 0.1 m)
 ROOM_MARGIN_M: Final = 0.3  # a room is cut out with its walls, floor and ceiling
@@ -80,11 +60,11 @@ TRAIN_POINTS: Final = 128  # I = J while training (inference pools up to 512): m
 # twice the samples at the same cost (validation rooms, 750 steps each: ARI 0.73 against 0.62)
 SAMPLES_PER_ROOM: Final = 1000  # cap, so that large rooms do not crowd out the others
 GENERATOR_SAMPLES: Final = 16_000  # cap per generator, so that office's many rooms do not crowd out the hall
-EPOCHS: Final = {Recipe.SHIPPED: 2, Recipe.TRANSFER: 8}  # each pass with other flips and rotations
+EPOCHS: Final = 8  # each pass with other flips and rotations; 2 (1,318 steps) lost on validation, 8 won (README)
 BATCH: Final = 64
 LEARNING_RATE: Final = 1e-3  # peak; linear warm-up, then cosine decay to zero over the run
 WARMUP_STEPS: Final = 30
-VAL_SAMPLES: Final = 1_500  # of the transfer recipe
+VAL_SAMPLES: Final = 1_500
 VAL_LOSS_ROOMS: Final = 4  # validation rooms per generator whose samples give the validation loss
 
 
@@ -253,20 +233,15 @@ def room_variant(cloud: LabelledCloud, rng: np.random.Generator) -> LabelledClou
 
 
 def make_samples(
-    clouds: list[LabelledCloud],
-    cfg: LRGNetConfig,
-    rng: np.random.Generator,
-    points: int | None = None,
-    features: int | None = None,
+    clouds: list[LabelledCloud], cfg: LRGNetConfig, rng: np.random.Generator, points: int | None = None
 ) -> Samples:
-    """Simulated growth over every scene, at most SAMPLES_PER_ROOM steps each, of TRAIN_POINTS by default, on the
-    first `features` feature columns (all by default)."""
+    """Simulated growth over every scene, at most SAMPLES_PER_ROOM steps each, of TRAIN_POINTS by default."""
     points = points or TRAIN_POINTS
     feats, scene, si, sn, rm, add, centre = [], [], [], [], [], [], []
     for k, cloud in enumerate(clouds):
         vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
         truth = voxel_truth(vc, cloud)
-        feats.append(vc.features[:, :features])
+        feats.append(vc.features)
         for a, b, c, d, e in simulate_growth(vc, truth, rng, points, points, SAMPLES_PER_ROOM):
             scene.append(k)
             si.append(a)
@@ -376,11 +351,10 @@ def fit(
     epochs: int,
     checkpoint: Callable[[LRGNet, int, list[dict[str, Any]]], None] | None = None,
 ) -> tuple[LRGNet, dict[str, Any]]:
-    """Adam with warm-up and cosine decay; `checkpoint(net, epoch, history)` after every epoch. The network reads
-    as many features as the samples carry."""
+    """Adam with warm-up and cosine decay; `checkpoint(net, epoch, history)` after every epoch."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    net = LRGNet(train_set.features[0].shape[1])
+    net = LRGNet()
     opt = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
     total_steps = epochs * -(-len(train_set) // BATCH)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: lr_factor(k, total_steps))
@@ -439,9 +413,8 @@ def validation_rooms(generator: str) -> list[LabelledCloud]:
 
 
 def generator_samples(generator: str, cfg: LRGNetConfig, seed: int) -> tuple[Samples, Samples, int]:
-    """Transfer recipe: training samples of one generator (rooms varied by `room_variant`, at most
-    GENERATOR_SAMPLES) and validation samples (VAL_LOSS_ROOMS validation rooms, half without colour), and the
-    number of training rooms."""
+    """Training samples of one generator (rooms varied by `room_variant`, at most GENERATOR_SAMPLES) and
+    validation samples (VAL_LOSS_ROOMS validation rooms, half without colour), and the number of training rooms."""
     rng = np.random.default_rng([seed, GENERATORS.index(generator)])
     train_rooms = training_rooms(generator)
     train_set = make_samples([room_variant(r, rng) for r in train_rooms], cfg, rng)
@@ -449,98 +422,54 @@ def generator_samples(generator: str, cfg: LRGNetConfig, seed: int) -> tuple[Sam
     return _cap(train_set, GENERATOR_SAMPLES, rng), make_samples(val, cfg, rng), len(train_rooms)
 
 
-def family_samples(family: str, cfg: LRGNetConfig, seed: int) -> tuple[Samples, Samples, int]:
-    """Shipped recipe: training and validation samples of one family (SHIPPED_VAL_ROOMS rooms of every training
-    building held back), and the number of training rooms."""
-    rng = np.random.default_rng([seed, split.FAMILIES.index(family)])
-    train_rooms, val_rooms = [], []
-    for b in SHIPPED_TRAIN_SEEDS[family]:
-        rooms = building_rooms(family, b)
-        order = rng.permutation(len(rooms))
-        val_rooms += [rooms[i] for i in order[:SHIPPED_VAL_ROOMS]]
-        train_rooms += [rooms[i] for i in order[SHIPPED_VAL_ROOMS:]]
-    train_set = make_samples(train_rooms, cfg, rng, features=SHIPPED_FEATURES)
-    return train_set, make_samples(val_rooms, cfg, rng, features=SHIPPED_FEATURES), len(train_rooms)
+def checkpoint_path(seed: int, epoch: int) -> Path:
+    return cache_dir() / "checkpoints" / f"lrgnet_seed{seed}_epoch{epoch}.pt"
 
 
-def recipe_data(recipe: Recipe, cfg: LRGNetConfig, seed: int) -> tuple[Samples, Samples, dict[str, Any]]:
-    """Training and validation samples of a recipe, and what the weights header records about them."""
-    if recipe == Recipe.SHIPPED:
-        data = [family_samples(f, cfg, seed) for f in split.FAMILIES]
-        limits: tuple[int | None, int] = SHIPPED_SAMPLES, SHIPPED_VAL_SAMPLES
-        base: dict[str, Any] = {
-            "families": list(split.FAMILIES),
-            "train_buildings": {f: list(SHIPPED_TRAIN_SEEDS[f]) for f in split.FAMILIES},
-        }
-    else:
-        data = [generator_samples(g, cfg, seed) for g in GENERATORS]
-        limits = None, VAL_SAMPLES  # training samples are capped per generator
-        base = {
-            "generators": list(GENERATORS),
-            "train_buildings": {g: list(TRAIN_SEEDS[g]) for g in GENERATORS},
-            "validation_buildings": {g: list(VALIDATION_SEEDS[g]) for g in GENERATORS},
-        }
+def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict:
+    """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt);
+    the same seed gives the same file."""
+    from aftershock.pipeline.refine import DEFAULT_WEIGHTS, weight_settings
+
+    torch.set_num_threads(1)  # measured faster than 2 threads on the shared 2-core machine
+    path = Path(out) if out is not None else DEFAULT_WEIGHTS
+    check_output(path, force)
+    n_epochs = epochs if epochs is not None else EPOCHS
+    cfg = LRGNetConfig()
+    t0 = time.perf_counter()
+    data = [generator_samples(g, cfg, seed) for g in GENERATORS]
     train_set, val_set = data[0][0], data[0][1]
     for tr, va, _ in data[1:]:
         train_set, val_set = merge(train_set, tr), merge(val_set, va)
-    rng = np.random.default_rng([seed, 7])
-    if limits[0] is not None:
-        train_set = _cap(train_set, limits[0], rng)
-    val_set = _cap(val_set, limits[1], rng)
-    return train_set, val_set, {**base, "train_rooms": sum(d[2] for d in data)}
-
-
-def checkpoint_path(seed: int, epoch: int, recipe: Recipe = Recipe.SHIPPED) -> Path:
-    return cache_dir() / "checkpoints" / f"lrgnet_{recipe.value}_seed{seed}_epoch{epoch}.pt"
-
-
-def train(
-    out: Path | None = None,
-    seed: int = 0,
-    epochs: int | None = None,
-    force: bool = False,
-    recipe: Recipe | str = Recipe.SHIPPED,
-) -> dict:
-    """`aftershock train lrgnet`: the shipped recipe into `out` (default the shipped lrgnet.pt);
-    `aftershock train lrgnet-transfer --out FILE`: the transfer candidate. The same seed gives the same file."""
-    from aftershock.pipeline.refine import DEFAULT_WEIGHTS, weight_settings
-
-    recipe = Recipe(recipe)
-    torch.set_num_threads(1)  # measured faster than 2 threads on the shared 2-core machine
-    if out is None and recipe != Recipe.SHIPPED:
-        raise InputError(f"the {recipe.value} recipe is a candidate, not the shipped file: name its weights with --out")
-    path = Path(out) if out is not None else DEFAULT_WEIGHTS
-    check_output(path, force)
-    n_epochs = epochs if epochs is not None else EPOCHS[recipe]
-    cfg = LRGNetConfig()
-    t0 = time.perf_counter()
-    train_set, val_set, base = recipe_data(recipe, cfg, seed)
-    base = {**base, "samples": len(train_set), "val_samples": len(val_set)}
-    base["data_seconds"] = round(time.perf_counter() - t0, 1)
-    layout = weight_settings(cfg)
-    if recipe == Recipe.SHIPPED:
-        layout = {**layout, "features": SHIPPED_FEATURES, "feature_version": SHIPPED_FEATURE_VERSION}
+    val_set = _cap(val_set, VAL_SAMPLES, np.random.default_rng([seed, 7]))
+    data_seconds = time.perf_counter() - t0
     settings = {
-        **layout, "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
-        "trajectory_steps": TRAJECTORY_STEPS, "seed": seed,
+        **weight_settings(cfg), "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
+        "trajectory_steps": TRAJECTORY_STEPS, "colour_free_share": COLOUR_FREE_SHARE, "seed": seed,
     }  # fmt: skip
-    if recipe == Recipe.TRANSFER:
-        settings["colour_free_share"] = COLOUR_FREE_SHARE
+    base = {
+        "generators": list(GENERATORS),
+        "train_buildings": {g: list(TRAIN_SEEDS[g]) for g in GENERATORS},
+        "validation_buildings": {g: list(VALIDATION_SEEDS[g]) for g in GENERATORS},
+        "train_rooms": sum(d[2] for d in data),
+        "samples": len(train_set),
+        "val_samples": len(val_set),
+        "data_seconds": round(data_seconds, 1),
+    }
 
     def checkpoint(net: LRGNet, epoch: int, history: list[dict[str, Any]]) -> None:
-        p = checkpoint_path(seed, epoch, recipe)
+        p = checkpoint_path(seed, epoch)
         p.parent.mkdir(parents=True, exist_ok=True)
-        save_weights(p, net, settings, {**base, "recipe": recipe.value, "epochs": epoch, "history": history})
+        save_weights(p, net, settings, {**base, "epochs": epoch, "history": history})
         log.info("checkpoint %s", p)
 
     net, figs = fit(train_set, val_set, seed, n_epochs, checkpoint)
-    figs = {**base, "recipe": recipe.value, **figs}
+    figs = {**base, **figs}
     save_weights(path, net, settings, figs)
     log.info("wrote %s", path)
     last = figs["history"][-1] if figs["history"] else {}
     return {
         "weights": str(path),
-        "recipe": recipe.value,
         "parameters": num_parameters(net),
         "samples": len(train_set),
         "seconds": figs["train_seconds"],

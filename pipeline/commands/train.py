@@ -13,7 +13,6 @@ import typer
 class Model(StrEnum):
     MCPNET = "mcpnet"
     LRGNET = "lrgnet"
-    LRGNET_TRANSFER = "lrgnet-transfer"  # LRGNet's #12 candidate recipe (not shipped; needs --out)
     CRACKEMBED = "crackembed"
 
 
@@ -28,10 +27,8 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print the training figures as JSON."),
     ) -> None:
         """Train a network from simulated missions and write its weights."""
-        name, _, recipe = model.value.partition("-")  # lrgnet-transfer: the lrgnet trainer's other recipe
-        module = importlib.import_module(f"aftershock.models.{name}_train")
-        options = {"recipe": recipe} if recipe else {}
-        figures = module.train(out=out, seed=seed, epochs=epochs, force=force, **options)
+        module = importlib.import_module(f"aftershock.models.{model.value}_train")
+        figures = module.train(out=out, seed=seed, epochs=epochs, force=force)
         if as_json:
             print(json.dumps(figures, indent=2))
         else:
