@@ -6,7 +6,8 @@ colour, side by side with their baselines.
   over the same missions (VLP-16 at 1.0 m on a wheeled robot, 1 m/s, 45 deg/s): OA, mean IoU, NMI, ARI,
   instance precision / recall, and per-class IoU, per generator and colour mode.
 - LRGNet and its classical baselines on rooms cut from held-out buildings of the training generators and of
-  `wing`, with and without colour: NMI / AMI / ARI / precision / recall (TRANSFER_LRGNET_WEIGHTS: other weights).
+  `wing`, with and without colour: NMI / AMI / ARI / precision / recall (TRANSFER_LRGNET_WEIGHTS: other weights,
+  TRANSFER_LRGNET_SETTINGS: other inference settings).
 
 TRANSFER_SCANS (default 100) sets the mission length; TRANSFER_SEEDS (default 900,901) the test seeds;
 TRANSFER_METHODS (default all) the online methods. `test_validation_choice` (run alone with -k) is how a
@@ -242,7 +243,9 @@ def test_lrgnet_transfer() -> None:
     torch.set_num_threads(1)
     # TRANSFER_LRGNET_WEIGHTS measures other LRGNet weights than the shipped ones (e.g. a rejected candidate)
     weights = os.environ.get("TRANSFER_LRGNET_WEIGHTS") or str(WEIGHTS_DIR / "lrgnet.pt")
-    cfg = LRGNetConfig(weights=weights)
+    # TRANSFER_LRGNET_SETTINGS ("key=value,...") measures other inference settings (e.g. crease_angle_deg=0)
+    settings = dict(kv.split("=") for kv in os.environ.get("TRANSFER_LRGNET_SETTINGS", "").split(",") if kv)
+    cfg = LRGNetConfig(weights=weights, **settings)
     net = load_network(cfg)
     domains = {g: [r for s in HELDOUT_SEEDS[g] for r in building_rooms(g, s)] for g in GENERATORS}
     domains[HELDOUT_GENERATOR] = [r for s in SEEDS for r in building_rooms(HELDOUT_GENERATOR, s)]
@@ -269,7 +272,7 @@ def test_lrgnet_transfer() -> None:
             )
     cols = [(d, c) for c in (True, False) for d in domains]
     where = f"held-out buildings of lrgnet_train; {HELDOUT_GENERATOR}: seeds {', '.join(map(str, SEEDS))}"
-    print(f"\nLRGNet weights {weights}; rooms: {LRG_ROOMS} per domain ({where})")
+    print(f"\nLRGNet weights {weights} {settings or 'default settings'}; rooms: {LRG_ROOMS} per domain ({where})")
     print("| method | " + " | ".join(f"{d} {'rgb' if c else 'no colour'}" for d, c in cols) + " |")
     print("|---|" + "---|" * len(cols))
     for name, row in results.items():
