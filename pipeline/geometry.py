@@ -238,16 +238,17 @@ def point_moments(centred: np.ndarray) -> np.ndarray:
 
 
 def _pca_of_moments(total: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Mean (G, 3), unit normal (G, 3) (sign-agnostic), curvature (G,) = smallest eigenvalue / sum and count
-    (G,) of groups from their summed `point_moments` (G, 13)."""
+    """Mean (G, 3), unit normal (G, 3) (sign-agnostic), eigenvalues (G, 3) as shares of their sum (ascending;
+    the first is the curvature) and count (G,) of groups from their summed `point_moments` (G, 13)."""
     count = total[:, 0]
     n = np.maximum(count, 1)  # empty groups: zeros, not NaN
     mean = total[:, 1:4] / n[:, None]
     cov = total[:, 4:].reshape(-1, 3, 3) / n[:, None, None] - mean[:, :, None] * mean[:, None, :]
     evals, evecs = np.linalg.eigh(cov)
-    sums = evals.sum(axis=1)
-    curvature = np.where(sums > 0, np.clip(evals[:, 0], 0, None) / np.where(sums > 0, sums, 1), 0.0)
-    return mean, evecs[:, :, 0], curvature, count
+    evals = np.clip(evals, 0, None)
+    sums = evals.sum(axis=1, keepdims=True)
+    shares = np.where(sums > 0, evals / np.where(sums > 0, sums, 1), 0.0)
+    return mean, evecs[:, :, 0], shares, count
 
 
 def block_pca(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -255,20 +256,20 @@ def block_pca(points: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray
     unit normals (N, 3) (sign-agnostic), curvature (N,) = smallest eigenvalue / sum, and point count (N,)."""
     pts = np.asarray(points, np.float64)
     q = pts - pts.mean(axis=0)
-    _, normals, curvature, count = _pca_of_moments(block_sums(q, point_moments(q), cell_m))
-    return normals, curvature, count
+    _, normals, shares, count = _pca_of_moments(block_sums(q, point_moments(q), cell_m))
+    return normals, shares[:, 0], count
 
 
 def label_pca(points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """PCA of the points of each label 0..max: centroid (L, 3), unit normal (L, 3) (sign-agnostic), curvature
-    (L,) = smallest eigenvalue / sum, and point count (L,)."""
+    """PCA of the points of each label 0..max: centroid (L, 3), unit normal (L, 3) (sign-agnostic), eigenvalues
+    (L, 3) as shares of their sum, ascending (the first is the curvature), and point count (L,)."""
     pts = np.asarray(points, np.float64)
     origin = pts.mean(axis=0)  # conditioning
     q = pts - origin
     total = np.zeros((int(labels.max()) + 1, 13))
     np.add.at(total, labels, point_moments(q))
-    mean, normals, curvature, count = _pca_of_moments(total)
-    return mean + origin, normals, curvature, count
+    mean, normals, shares, count = _pca_of_moments(total)
+    return mean + origin, normals, shares, count
 
 
 def point_spacing(points: np.ndarray, sample: int = 20_000, seed: int = 0) -> float:

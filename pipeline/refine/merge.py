@@ -76,8 +76,8 @@ def merge_coplanar(vc: VoxelCloud, labels: np.ndarray, max_angle_deg: float, max
     if len(pairs) == 0:
         return labels
     pairs = pairs[contacts >= MIN_CONTACTS]
-    centre, normal, flatness, count = label_pca(vc.points, labels)
-    flatness = np.where(count >= 3, flatness, 1.0)  # fewer than 3 points: no plane
+    centre, normal, shares, count = label_pca(vc.points, labels)
+    flatness = np.where(count >= 3, shares[:, 0], 1.0)  # fewer than 3 points: no plane
     i, j = pairs[:, 0], pairs[:, 1]
     d = centre[j] - centre[i]
     ok = (flatness[i] < MAX_FLATNESS) & (flatness[j] < MAX_FLATNESS)
