@@ -60,14 +60,12 @@ class RegisterConfig(_Section):
     max_points_per_voxel: Count = 20
     # A frame whose ICP moved it further than this from the constant-velocity prediction is flagged.
     max_correction_m: Positive = 1.0
+    # Turn the world so that z is up, from the first scan's floors and walls (pipeline.level); off keeps
+    # KISS-ICP's world, the first scan's sensor frame.
+    level: bool = True
     # "truth": the log's own true poses replace KISS-ICP (to score labelling without registration errors)
     poses: Literal["estimated", "truth"] = "estimated"
     threads: Annotated[int, Field(ge=0)] = 0  # KISS-ICP's threads; 0 = every core (`batch` gives each mission one)
-    # KISS-ICP's world is the first scan's sensor frame, so a LiDAR mounted tilted tilts the whole map. The
-    # networks measure height above the floor and verticality in a level frame (they were trained in one), so
-    # the map is turned once, by the floor found in the first scan, so that z is up (truth poses are level).
-    level: bool = True
-    level_max_tilt_deg: Annotated[float, Field(gt=0, le=60)] = 40.0  # a floor tilted further is not sought
 
 
 class StreamConfig(_Section):

@@ -6,11 +6,6 @@ the sweep) but is done here in numpy for *every* point, so the world points stay
 per-point arrays; KISS-ICP then gets the deskewed scan and an empty time array (its own deskew would also
 drop out-of-range points and break that alignment).
 
-With `registration.level` the map is then turned once so that the floor under the first scan is level: KISS-ICP's
-world is the first scan's sensor frame, which a tilted mount tilts (the networks measure heights and
-verticality in a level frame). A turn under `LEVEL_MIN_DEG`, or a first scan without a floor to go by, leaves
-the sensor's frame as it is.
-
 A scan that cannot be aligned (too few points in range, a non-finite pose, or an ICP correction far from
 the constant-velocity prediction) is reported on the frame (`registration_ok = False` and a note) and the
 stream goes on; the labelling stage leaves such frames out of the map.
@@ -30,7 +25,7 @@ from kiss_icp.kiss_icp import KissICP
 from scipy.spatial.transform import Rotation
 
 from aftershock.pipeline.config import Environment, RegisterConfig
-from aftershock.pipeline.geometry import floor_normal, rotation_to_z
+from aftershock.pipeline.level import estimate_up, leveling_pose
 from aftershock.pipeline.types import Frame, Scan
 
 log = logging.getLogger(__name__)
@@ -38,8 +33,6 @@ log = logging.getLogger(__name__)
 MIN_POINTS: Final = 100
 DESKEW_STEPS: Final = 1000  # fewer points in range than this and ICP has nothing to hold on to
 INDOOR_GUESS_RANGE_M: Final = 15.0  # 90 % of the first scan's returns nearer than this -> indoor
-LEVEL_HEIGHT_M: Final = (0.25, 3.0)  # the floor sought lies this far below the sensor (mounts of 0.3-1.8 m)
-LEVEL_MIN_DEG: Final = 1.0  # below this the floor fit's own noise is as large as the turn: the map stays as it is
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,8 +190,11 @@ class Registrar:
         self.frames = 0
         self._last_stamp_ns: int | None = None
         self._fraction = 0.0
-        self.level: np.ndarray | None = None  # (4, 4) the turn that levels the map, once found
-        self.level_deg = 0.0  # how far the first scan's floor was from level (0 without levelling)
+        # KISS-ICP's world is the first scan's sensor frame; `level` turns it so that z is up (pipeline.level).
+        # Decided once, on the first scan that registers, so every pose of the run is in the same frame.
+        self.level = np.eye(4)
+        self.tilt_deg: float | None = None  # the first scan's tilt from up, once known (None: not levelled)
+        self._level_decided = not cfg.level
 
     def register(self, frame: Frame) -> Frame:
         scan = frame.scan
@@ -209,20 +205,19 @@ class Registrar:
         if self._fraction > 0:
             points = deskew(points, scan.times, sweep_motion(delta, self._fraction))
         ranges = norms(points)
-        in_range = (ranges > self.settings.min_range_m) & (ranges < self.settings.max_range_m)
-        usable = int(in_range.sum())
-        if self.frames == 0 and self.cfg.level:
-            self._find_level(points[in_range])
+        usable = int(((ranges > self.settings.min_range_m) & (ranges < self.settings.max_range_m)).sum())
         if usable < MIN_POINTS:
             self._skip(frame, prediction, f"only {usable} points within range; pose predicted from motion")
         else:
+            if not self._level_decided:
+                self._decide_level(points, scan.seq)
             self.kiss.register_frame(points, np.zeros(0))
             pose = self.kiss.last_pose
             correction = float(np.linalg.norm((np.linalg.inv(prediction) @ pose)[:3, 3]))
             if not np.isfinite(pose).all():
                 self._skip(frame, prediction, "ICP gave a non-finite pose; pose predicted from motion")
             else:
-                frame.pose = pose.copy()
+                frame.pose = self.level @ pose
                 if self.frames > 1 and correction > self.cfg.max_correction_m:
                     frame.registration_ok = False
                     frame.registration_note = (
@@ -230,8 +225,6 @@ class Registrar:
                     )
                     # The motion since the last scan is not to be trusted as a prediction of the next one.
                     self.kiss.last_delta = np.eye(4)
-        if self.level is not None:
-            frame.pose = self.level @ frame.pose
         frame.world_points = transform(frame.pose, points)
         frame.stamp_pose = self._stamp_pose(frame)
         self.frames += 1
@@ -239,21 +232,6 @@ class Registrar:
         if not frame.registration_ok:
             log.warning("scan %d: %s", scan.seq, frame.registration_note)
         return frame
-
-    def _find_level(self, points: np.ndarray) -> None:
-        """The turn that makes the floor under the first scan level (its sweep is not deskewed: no motion yet)."""
-        normal = floor_normal(points, self.cfg.level_max_tilt_deg, LEVEL_HEIGHT_M)
-        if normal is None:
-            log.info("no floor found in the first scan: the map keeps the sensor's frame (z along its axis)")
-            return
-        self.level_deg = float(np.rad2deg(np.arccos(np.clip(normal[2], -1.0, 1.0))))
-        if self.level_deg < LEVEL_MIN_DEG:
-            return
-        self.level = np.eye(4)
-        self.level[:3, :3] = rotation_to_z(normal)
-        log.info(
-            "the first scan's floor is tilted %.1f deg from the sensor's axis: the map is levelled", self.level_deg
-        )
 
     def _sweep_fraction(self, scan: Scan) -> float:
         """Share of the motion between the previous scan and this one that happened during this sweep
@@ -277,9 +255,22 @@ class Registrar:
         s = (0.0 - t0) / (t1 - t0)
         return frame.pose @ se3_exp((s - 1.0) * se3_log(sweep_motion(self.kiss.last_delta, self._fraction)))
 
+    def _decide_level(self, points: np.ndarray, seq: int) -> None:
+        self._level_decided = True
+        found = estimate_up(points)
+        if found is None:
+            log.warning("scan %d: too few floors and walls to tell which way is up; the world's z is the sensor's", seq)
+            return
+        self.level = leveling_pose(found.up)
+        self.tilt_deg = found.tilt_deg
+        log.info(
+            "scan %d: world levelled, the sensor's z is %.1f deg from up (%d floor and %d wall patches)",
+            seq, found.tilt_deg, found.floor_patches, found.wall_patches,
+        )  # fmt: skip
+
     def _skip(self, frame: Frame, prediction: np.ndarray, note: str) -> None:
         self.kiss.last_pose = prediction
-        frame.pose = prediction.copy()
+        frame.pose = self.level @ prediction
         frame.registration_ok = False
         frame.registration_note = note
 
@@ -289,6 +280,8 @@ class TruthPoses:
     without registration errors. Each scan's `gt_pose` is the sensor pose at its stamp; points are deskewed
     with the motion between this true pose and the previous one, taken as constant over the sweep. A scan
     without a true pose is left out of the map like a scan that failed to register."""
+
+    tilt_deg: float | None = None  # true poses come in the log's own world: nothing is levelled here
 
     def __init__(self) -> None:
         self._last: tuple[np.ndarray, int] | None = None  # (true pose, stamp ns) of the previous scan

@@ -331,6 +331,7 @@ def _run(
             summary.skipped_messages = len(info.report.skipped)
             summary.damaged_log = info.report.damage is not None
             summary.damage = info.report.damage
+            summary.level_tilt_deg = registrar.tilt_deg
             for sink in sinks:  # one sink that cannot write does not keep the others from finishing
                 try:
                     if seqs and last_map_seq != seqs[-1]:

@@ -242,3 +242,4 @@ class RunSummary:
     damage: str | None = None  # why it ended early
     fragments: int = 0  # instances before those under the minimum object size were hidden (`instances` = shown)
     final_merges: int = 0  # instances merged by the end-of-run consolidation
+    level_tilt_deg: float | None = None  # how far the first scan's z was from up (None: world not levelled)

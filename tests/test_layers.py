@@ -3,7 +3,7 @@
 Layers, bottom to top (a module imports only from layers below it, or from its own component):
 0. vocabulary: types, config, errors, classes, geometry, progress, cloud_io, the ROS codec, metrics
 1. models: the networks (not their training pipelines)
-2. components: sources; the stages (register, voxel_map, label, labellers, cluster, refine, damage, trajectory)
+2. components: sources; the stages (register, level, voxel_map, label, labellers, cluster, refine, damage, trajectory)
 3. the stream and the sink interface it owns
 4. sinks, which implement that interface
 5. the command line: cli, commands, and the training pipelines (they drive the simulator and the stages)
@@ -30,7 +30,7 @@ VOCABULARY: Final = (
 )
 STAGES: Final = tuple(
     f"pipeline.{m}"
-    for m in ("register", "voxel_map", "label", "labellers", "cluster", "refine", "damage", "trajectory")
+    for m in ("register", "level", "voxel_map", "label", "labellers", "cluster", "refine", "damage", "trajectory")
 )
 
 

@@ -96,6 +96,7 @@ def report(result: StreamResult, poses: str = "estimated") -> dict[str, Any]:
         # all instances before the small ones were hidden, final_merges those the end-of-run consolidation joined
         "fragments": s.fragments,
         "final_merges": s.final_merges,
+        "level_tilt_deg": s.level_tilt_deg,
     }
 
 
