@@ -38,6 +38,7 @@ EVAL_KEYS = (
     "ate_m",
     "scans",
     "scans_per_second",
+    "level_tilt_deg",
 )
 
 
@@ -57,6 +58,7 @@ def test_real_logs_run_end_to_end(name: str, lidar_dir: Path, tmp_path: Path, ca
     assert summary["scans"] >= 1 and summary["map_voxels"] > 100 and summary["instances"] > 0
     assert summary["registration_failures"] == []
     assert set(summary["mean_timings_ms"]) >= {"register", "label", "cluster", "sinks"}
+    assert 0.0 <= summary["level_tilt_deg"] < 5.0  # levelled from the first scan; these sensors sat near level
 
     rec = read_rrd(out)
     assert {L.SCAN_TIMELINE} <= rec.timelines

@@ -217,6 +217,7 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "damage": s.damage,
         "environment": result.environment.value,
         "labeller": result.labeller,
+        "level_tilt_deg": s.level_tilt_deg,  # the first scan's z from up (None: the world was not levelled)
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
         "trajectory": result.trajectory.as_dict() if result.trajectory else None,
         "outputs": outputs,
