@@ -95,6 +95,8 @@ class LabelConfig(_Section):
     weights: str | None = None  # None = the shipped weights in models/weights
     # MCPNet on logs without colour (#12): None = the shipped colour-free network, or `weights` when that is set
     weights_no_color: str | None = None
+    # `eval --oracle`: the truth in place of the labeller's classes or embeddings (pipeline.labellers.oracle)
+    oracle: Literal["none", "classes", "objects"] = "none"
 
 
 class ClusterConfig(_Section):

@@ -33,6 +33,7 @@ from aftershock.pipeline.cluster import InstanceClusterer, cluster_stage
 from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError, OutputError
 from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
+from aftershock.pipeline.labellers.oracle import TruthStandIn
 from aftershock.pipeline.register import MIN_POINTS, guess_environment, make_registrar, register_stage
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
@@ -76,16 +77,22 @@ def resolve_environment(cfg: Config, first: Scan) -> Environment:
 
 def choose_labeller(cfg: Config, notice: Callable[[str], None]) -> Labeller:
     """The configured labeller; the default MCPNet falls back to the baseline (with a notice) when it is
-    not available, a labeller asked for by name, or with a weights file named, does not."""
+    not available, a labeller asked for by name, or with a weights file named, does not. With
+    `label.oracle` the truth stands in for its classes or embeddings (`eval --oracle`)."""
     name = cfg.label.labeller
     try:
-        return make_labeller(name, cfg)
+        labeller = make_labeller(name, cfg)
     except InputError as exc:
         asked = {"labeller", "weights"} & cfg.label.model_fields_set
         if asked or cfg.label.weights is not None or name == FALLBACK_LABELLER:
             raise
         notice(f"{exc}; using the {FALLBACK_LABELLER} baseline instead")
-        return make_labeller(FALLBACK_LABELLER, cfg)
+        labeller = make_labeller(FALLBACK_LABELLER, cfg)
+    if cfg.label.oracle == "none":
+        return labeller
+    if cfg.label.oracle == "objects" and not labeller.embedding_dim:
+        raise InputError(f"--oracle objects: labeller {labeller.name!r} has no embeddings to stand in for")
+    return TruthStandIn(labeller, cfg.label.oracle)
 
 
 @contextmanager
@@ -250,6 +257,8 @@ def _run(
     t_start = perf_counter()
     it = iter(scans)
     skipped, first = _first_usable(it, info.source)
+    if cfg.label.oracle != "none" and not first.has_ground_truth:
+        raise InputError(f"label.oracle={cfg.label.oracle} needs a log with ground truth", info.source)
     environment = resolve_environment(cfg, first)
     cfg = cfg.model_copy(deep=True)
     cfg.label.environment = environment

@@ -376,3 +376,32 @@ def test_ctrl_c_on_the_command_line(tmp_path: Path) -> None:
     # The scan in flight when Ctrl-C came may have reached the last stage too, without being counted.
     assert len(rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)) in (scans, scans + 1)
     assert rrd_verify(out).returncode == 0
+
+
+def test_eval_with_the_truth_standing_in_for_classes_or_embeddings(capsys) -> None:
+    """`--oracle` takes one part of the labeller out of the picture: with the true classes the semantic scores
+    are perfect and the objects about the same (the clustering reads embeddings; classes only say which pieces
+    are walls and floors); with a vector per true object the objects improve. Bad values and a labeller
+    without embeddings: one line, exit 2."""
+    uri = "sim://office?seed=5&sensor=vlp16&scans=15&robot=wheeled&height=1"
+    reps = {}
+    for oracle in ("none", "classes", "objects"):
+        code, stdout, _ = _run_cli(["eval", uri, "--oracle", oracle, "--quiet", "--json"], capsys)
+        assert code == 0
+        reps[oracle] = json.loads(stdout)
+        assert reps[oracle]["oracle"] == oracle and set(EVAL_KEYS) <= set(reps[oracle])
+    plain, classes, objects = reps["none"], reps["classes"], reps["objects"]
+    assert plain["labeller"] == "mcpnet" and classes["labeller"] == "mcpnet+true-classes"
+    assert classes["overall_accuracy"] == 1.0 and classes["mean_iou"] == 1.0
+    assert abs(classes["nmi"] - plain["nmi"]) < 0.03
+    assert objects["nmi"] > plain["nmi"] + 0.05 and objects["recall"] > plain["recall"]
+    code, _, err = _run_cli(["eval", uri, "--oracle", "labels"], capsys)
+    assert code == 2 and "unknown --oracle 'labels'" in err and "Traceback" not in err
+    code, _, err = _run_cli(["eval", uri, "--oracle", "objects", "--labeller", "region-growing"], capsys)
+    assert code == 2 and "no embeddings" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_truth_stand_in_on_a_log_without_truth_is_refused(lidar_dir: Path, capsys) -> None:
+    log = lidar_dir / "velodyne_vlp16_indoor.mcap"
+    code, _, err = _run_cli(["run", str(log), "--set", "label.oracle=objects"], capsys)
+    assert code == 2 and "needs a log with ground truth" in err and str(log) in err

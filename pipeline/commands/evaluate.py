@@ -19,6 +19,7 @@ import numpy as np
 import typer
 
 from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.labellers.oracle import ORACLES
 from aftershock.pipeline.stream import StreamResult, run_stream
 from aftershock.pipeline.types import Scan
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -70,9 +71,10 @@ def require_truth(scans: Iterator[Scan], source: str, poses: bool = False) -> It
     return itertools.chain([first], scans)
 
 
-def report(result: StreamResult, poses: str = "estimated") -> dict[str, Any]:
+def report(result: StreamResult, poses: str = "estimated", oracle: str = "none") -> dict[str, Any]:
     """The scores as JSON data; `poses` says which poses placed the scans ("estimated" by KISS-ICP or the
-    log's "truth", in which case there is no trajectory error to report)."""
+    log's "truth", in which case there is no trajectory error to report), `oracle` what truth stood in for
+    part of the labeller's output ("none", "classes" or "objects")."""
     s = result.summary
     scores = evaluate_map(result.vmap)
     traj = result.trajectory if poses == "estimated" else None
@@ -92,6 +94,7 @@ def report(result: StreamResult, poses: str = "estimated") -> dict[str, Any]:
         "environment": result.environment.value,
         "interrupted": s.interrupted,
         "poses": poses,
+        "oracle": oracle,
         # predicted_instances are the objects shown (at least cluster.min_object_voxels voxels); fragments are
         # all instances before the small ones were hidden, final_merges those the end-of-run consolidation joined
         "fragments": s.fragments,
@@ -152,17 +155,26 @@ def register(app: typer.Typer) -> None:
             help="estimated: register with KISS-ICP; truth: place scans with the log's true poses, so labelling "
             "errors can be told apart from registration errors.",
         ),
+        oracle: str = typer.Option(
+            "none",
+            "--oracle",
+            help="classes: the true class stands in for the labeller's; objects: a vector per true object stands "
+            "in for its embeddings — to tell class, embedding and clustering errors apart.",
+        ),
     ) -> None:
         """Score the online labelling and registration against the ground truth in a log."""
         if poses not in POSES:
             raise InputError(f"unknown --poses {poses!r}; choose one of: {', '.join(POSES)}")
+        if oracle not in ORACLES:
+            raise InputError(f"unknown --oracle {oracle!r}; choose one of: {', '.join(ORACLES)}")
         cfg = build_config(config, overrides, labeller, topic, start, end, every, max_scans)
         cfg.registration.poses = poses  # type: ignore[assignment]  # checked above
+        cfg.label.oracle = oracle  # type: ignore[assignment]  # checked above
         scans, info = open_scans(source, cfg, quiet)
         scans = require_truth(scans, source, poses=poses == "truth")
         notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
         result = run_stream(scans, cfg, [], info, notice)
-        rep = report(result, poses)
+        rep = report(result, poses, oracle)
         if as_json:
             print(json.dumps(rep, indent=2))
         else:
