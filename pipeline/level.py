@@ -59,8 +59,11 @@ def planar_patches(points: np.ndarray, cell_m: float = CELL_M) -> np.ndarray:
     out = []
     for offset in (0.0, 0.5 * cell_m):
         keys = np.floor((pts + offset) / cell_m).astype(np.int64)
-        _, cell = np.unique(keys, axis=0, return_inverse=True)
-        _, normals, shares, count = label_pca(pts, cell.ravel())
+        keys -= keys.min(axis=0)
+        span = keys.max(axis=0) + 1
+        packed = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]  # one int64 per cell: a fast unique
+        _, cell = np.unique(packed, return_inverse=True)
+        _, normals, shares, count = label_pca(pts, cell)
         # flat, and spread both ways: a cell crossed by one scan line is a line, and its "normal" is any
         # direction across it (such cells tilted the estimate by a degree on a level scan)
         flat = (count >= MIN_CELL_POINTS) & (shares[:, 0] < MAX_CURVATURE) & (shares[:, 1] > MIN_SPREAD)
