@@ -48,7 +48,8 @@ def split_creases(vc: VoxelCloud, labels: np.ndarray, max_angle_deg: float, min_
     same = labels[e[:, 0]] == labels[e[:, 1]]
     same &= np.abs(np.einsum("ij,ij->i", normals[e[:, 0]], normals[e[:, 1]])) >= np.cos(np.radians(max_angle_deg))
     part = _components(len(vc), e[same])
-    _, _, flatness, size = label_pca(vc.points, part)
+    _, _, shares, size = label_pca(vc.points, part)
+    flatness = shares[:, 0]  # smallest eigenvalue over the sum
     big = np.flatnonzero((size >= min_voxels) & (flatness < MAX_FLATNESS))
     if len(big) == 0:
         return labels
