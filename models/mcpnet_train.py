@@ -67,6 +67,9 @@ TRANSFER_COLOR_DROP: Final = 0.5
 # cosine over the whole run (1e-3 to 5e-5, as every MCPNet here), so a longer run also stays longer at a high LR.
 TRANSFER_EPOCHS: Final = 6
 CLASS_WEIGHT_POWER: Final = 0.0
+# Share of the colour-free network's triplet batches drawn as neighbouring instances of one mission
+# (`Pool.local_instance_batch`) rather than over all missions; see the README (objects without colour).
+TRANSFER_LOCAL_BATCHES: float = 0.0
 COARSE_POINTS: Final = 32  # draws of the wider context (3 x 3 x 3 cells of 0.5 m)
 TRANSFER_SENSORS: Final[tuple[str, ...]] = ("vlp16", "vlp16", "vlp32c", "os1-32")
 TRANSFER_ROBOTS: Final[tuple[str, ...]] = ("legged", "wheeled", "tracked")
@@ -199,6 +202,13 @@ class Pool:
         ids, start, count = np.unique(self.sample_instance[order], return_index=True, return_counts=True)
         good = (ids > 0) & (count >= 2)
         self.inst_order, self.inst_start, self.inst_count = order, start[good], count[good]
+        # Where each of those instances lies (centroid of its training points) and whose mission it is, for
+        # batches of neighbouring instances (`local_instance_batch`).
+        inst_of_sample = np.repeat(np.arange(len(ids)), count)[np.argsort(order, kind="stable")]
+        sums = np.zeros((len(ids), 3))
+        np.add.at(sums, inst_of_sample, self.positions[self.rows])
+        self.inst_centre = (sums / count[:, None])[good]
+        self.inst_mission = (ids[good] >> 32).astype(np.int64)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -248,6 +258,19 @@ class Pool:
     def instance_batch(self, rng: np.random.Generator) -> np.ndarray:
         """16 instances x 16 points (with replacement where an instance has fewer), as sample indices."""
         pick = rng.choice(len(self.inst_start), size=min(BATCH_INSTANCES, len(self.inst_start)), replace=False)
+        return self._instance_points(pick, rng)
+
+    def local_instance_batch(self, rng: np.random.Generator) -> np.ndarray:
+        """Like `instance_batch`, but one random instance and the 15 of its mission whose centroids lie nearest:
+        the negatives the clusterer must tell apart (two walls at a corner, chairs side by side), which 16
+        instances drawn over all missions almost never hold."""
+        anchor = int(rng.integers(len(self.inst_start)))
+        same = np.flatnonzero(self.inst_mission == self.inst_mission[anchor])
+        dist = np.linalg.norm(self.inst_centre[same] - self.inst_centre[anchor], axis=1)
+        pick = same[np.argsort(dist, kind="stable")[:BATCH_INSTANCES]]  # the anchor itself first
+        return self._instance_points(pick, rng)
+
+    def _instance_points(self, pick: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         offs = (rng.random((len(pick), POINTS_PER_INSTANCE)) * self.inst_count[pick, None]).astype(np.int64)
         return self.inst_order[self.inst_start[pick, None] + offs].ravel()
 
@@ -296,10 +319,13 @@ def train_mcpnet(
     learning_rate: float = LEARNING_RATE,
     per_mission: bool = False,
     class_weight_power: float = 0.0,
+    local_batches: float = 0.0,
 ) -> tuple[MCPNet, dict]:
     """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once.
     `class_weight_power` p weights each class's loss by (its share of the points)^-p: 0 sees the classes as the
-    stream does, 0.5 lifts the rare ones (mean IoU counts every class alike)."""
+    stream does, 0.5 lifts the rare ones (mean IoU counts every class alike). `local_batches`: the share of
+    batches whose instances are neighbours in one mission (`Pool.local_instance_batch`); 0 draws no extra random
+    numbers, so recipes without it train as before."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MCPNet(cfg)
@@ -317,7 +343,8 @@ def train_mcpnet(
     for epoch in range(epochs):
         tot_t = tot_c = acc = 0.0
         for _ in range(steps):
-            inst_idx = pool.instance_batch(rng)
+            local = local_batches > 0 and rng.random() < local_batches
+            inst_idx = pool.local_instance_batch(rng) if local else pool.instance_batch(rng)
             uni_idx = rng.integers(0, len(pool), UNIFORM_POINTS)  # class frequencies as the stream sees them
             idx = np.concatenate([inst_idx, uni_idx])
             pf, ctx, _, wide, _ = pool.features(idx, rng, True, cfg, color_drop, per_mission)
@@ -573,6 +600,7 @@ def train(
             "scans_per_mission": TRANSFER_SCANS,
             "color_drop_per_mission": TRANSFER_COLOR_DROP,
             "class_weight_power": CLASS_WEIGHT_POWER,
+            "local_batches": TRANSFER_LOCAL_BATCHES,
             "training_points": len(pool),
             "epochs": TRANSFER_EPOCHS if epochs is None else epochs,
             "range_m": cfg.range_m,
@@ -588,6 +616,7 @@ def train(
             color_drop=TRANSFER_COLOR_DROP,
             per_mission=True,
             class_weight_power=CLASS_WEIGHT_POWER,
+            local_batches=TRANSFER_LOCAL_BATCHES,
             checkpoint=lambda m, f: save_weights(partial, m, cfg, {**recipe, **f}),
         )
         keep("mcpnet-nocolor", model, cfg, recipe, fig)
