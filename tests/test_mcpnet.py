@@ -24,7 +24,17 @@ from aftershock.models.mcpnet import (
     row_offsets,
     save_weights,
 )
-from aftershock.models.mcpnet_train import HELDOUT_SEEDS, TRAIN_SEEDS, semihard_triplet_loss
+from aftershock.models.mcpnet_train import (
+    BATCH_INSTANCES,
+    HELDOUT_SEEDS,
+    POINTS_PER_INSTANCE,
+    TRAIN_SEEDS,
+    Pool,
+    mcpnet_config,
+    semihard_triplet_loss,
+    stage_uris,
+    transfer_uris,
+)
 from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.classes import NUM_CLASSES, UNLABELLED
 from aftershock.pipeline.config import Config
@@ -131,6 +141,28 @@ def test_triplet_loss_is_the_semi_hard_rule() -> None:
             dn = beyond.min() if len(beyond) else negs.max()
             expect.append(max(0.0, 1.0 + d[a, p] - dn))
     assert float(semihard_triplet_loss(emb, labels)) == pytest.approx(float(np.mean(expect)), rel=1e-5)
+
+
+def test_local_instance_batches_hold_neighbouring_instances_of_one_mission() -> None:
+    """A local triplet batch: 16 whole instances of one mission, the anchor's nearest by centroid; a global one
+    draws over every mission. Centroids are those of each instance's own training points."""
+    pool = Pool(stage_uris(transfer_uris((100,), 25)[:2], mcpnet_config(), log=False))
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        inst = pool.sample_instance[pool.local_instance_batch(rng)].reshape(-1, POINTS_PER_INSTANCE)
+        which = np.searchsorted(pool.sample_instance[pool.inst_order][pool.inst_start], inst[:, 0])
+        mine = pool.inst_mission == pool.inst_mission[which[0]]
+        assert len(inst) == min(BATCH_INSTANCES, mine.sum())  # a mission with fewer instances gives them all
+        assert (inst == inst[:, :1]).all() and len(np.unique(inst[:, 0])) == len(inst)
+        assert len(np.unique(inst[:, 0] >> 32)) == 1  # one mission
+        dist = np.linalg.norm(pool.inst_centre[which] - pool.inst_centre[which[0]], axis=1)
+        others = np.linalg.norm(pool.inst_centre[mine] - pool.inst_centre[which[0]], axis=1)
+        assert dist.max() <= np.sort(others)[len(inst) - 1] + 1e-9  # the nearest ones, none skipped
+    k = 3
+    own = pool.inst_order[pool.inst_start[k] : pool.inst_start[k] + pool.inst_count[k]]
+    assert np.allclose(pool.positions[pool.rows[own]].mean(axis=0), pool.inst_centre[k])
+    spread = {int(i >> 32) for _ in range(20) for i in pool.sample_instance[pool.instance_batch(rng)]}
+    assert spread == {0, 1}
 
 
 def test_training_and_heldout_seeds_are_disjoint() -> None:
