@@ -69,7 +69,7 @@ TRANSFER_EPOCHS: Final = 6
 CLASS_WEIGHT_POWER: Final = 0.0
 # Share of the colour-free network's triplet batches drawn as neighbouring instances of one mission
 # (`Pool.local_instance_batch`) rather than over all missions; see the README (objects without colour).
-TRANSFER_LOCAL_BATCHES: float = 0.0
+TRANSFER_LOCAL_BATCHES: Final = 0.5
 COARSE_POINTS: Final = 32  # draws of the wider context (3 x 3 x 3 cells of 0.5 m)
 TRANSFER_SENSORS: Final[tuple[str, ...]] = ("vlp16", "vlp16", "vlp32c", "os1-32")
 TRANSFER_ROBOTS: Final[tuple[str, ...]] = ("legged", "wheeled", "tracked")
