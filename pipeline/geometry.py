@@ -22,6 +22,14 @@ def voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return np.floor(np.asarray(points) / voxel_m).astype(np.int64)
 
 
+def voxel_index(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """Index (N,) of each point's voxel, the voxels numbered in the order of their keys."""
+    keys = voxel_keys(points, voxel_m)
+    packed = _pack_keys(keys)
+    rows = keys if packed is None else packed
+    return np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1)
+
+
 def voxel_downsample(points: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
     """One point per voxel: (indices of the first point of each voxel, in input order; voxel index of every point)."""
     keys = voxel_keys(points, voxel_m)

@@ -12,7 +12,7 @@ overwritten.
 
 from __future__ import annotations
 
-from typing import Final, Literal
+from typing import Final, Literal, get_args
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import VoxelMap
 
 Oracle = Literal["none", "classes", "objects"]
-ORACLES: Final[tuple[str, ...]] = ("none", "classes", "objects")
+ORACLES: Final[tuple[str, ...]] = get_args(Oracle)
 _SEED: Final = 0
 
 
