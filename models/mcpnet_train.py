@@ -70,6 +70,19 @@ CLASS_WEIGHT_POWER: Final = 0.0
 # Share of the colour-free network's triplet batches drawn as neighbouring instances of one mission
 # (`Pool.local_instance_batch`) rather than over all missions; see the README (objects without colour).
 TRANSFER_LOCAL_BATCHES: Final = 0.5
+# Share of batches drawn as a spatial crop (`Pool.crop_batch`), and the weight of the affinity loss on the crop's
+# neighbouring points (`affinity_loss`); 0 = neither (see the README, objects without colour).
+TRANSFER_CROP_BATCHES: Final = 0.0
+TRANSFER_AFFINITY_WEIGHT: Final = 0.0
+CROP_POINTS: Final = 256  # a crop: this many training points of one mission nearest a point of a random instance
+# The affinity loss acts where the clusterer decides: pairs of points in neighbouring 0.1 m voxels (the 26 around
+# one lie within sqrt(3) x 0.1 m). One instance's neighbours are pulled above LINK_POSITIVE cosine similarity (the
+# clusterer links voxels at 0.9), two instances' neighbours pushed below LINK_NEGATIVE (instances merge at 0.85
+# mean similarity, fragments are absorbed at 0.7).
+AFFINITY_RADIUS_M: Final = 0.18
+LINK_POSITIVE: Final = 0.95
+LINK_NEGATIVE: Final = 0.65
+_MISSION_SPACING_M: Final = 1e5  # missions set apart this far in the crop index, so a crop never spans two
 COARSE_POINTS: Final = 32  # draws of the wider context (3 x 3 x 3 cells of 0.5 m)
 TRANSFER_SENSORS: Final[tuple[str, ...]] = ("vlp16", "vlp16", "vlp32c", "os1-32")
 TRANSFER_ROBOTS: Final[tuple[str, ...]] = ("legged", "wheeled", "tracked")
@@ -209,6 +222,7 @@ class Pool:
         np.add.at(sums, inst_of_sample, self.positions[self.rows])
         self.inst_centre = (sums / count[:, None])[good]
         self.inst_mission = (ids[good] >> 32).astype(np.int64)
+        self._crop_tree = None  # built on the first `crop_batch`
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -270,6 +284,20 @@ class Pool:
         pick = same[np.argsort(dist, kind="stable")[:BATCH_INSTANCES]]  # the anchor itself first
         return self._instance_points(pick, rng)
 
+    def crop_batch(self, rng: np.random.Generator) -> np.ndarray:
+        """The CROP_POINTS training points of one mission nearest a random point of a random instance: a piece of
+        the map about a metre across with the boundaries the clusterer has to draw (an object and the floor
+        under it, two walls at a corner), at the density the map has."""
+        if self._crop_tree is None:
+            from scipy.spatial import cKDTree
+
+            where = self.positions[self.rows].copy()
+            where[:, 0] += self.mission * _MISSION_SPACING_M
+            self._crop_tree = cKDTree(where)
+        anchor = self._instance_points(np.array([int(rng.integers(len(self.inst_start)))]), rng)[0]
+        _, near = self._crop_tree.query(self._crop_tree.data[anchor], k=min(CROP_POINTS, len(self)))
+        return np.sort(np.asarray(near, np.int64))
+
     def _instance_points(self, pick: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         offs = (rng.random((len(pick), POINTS_PER_INSTANCE)) * self.inst_count[pick, None]).astype(np.int64)
         return self.inst_order[self.inst_start[pick, None] + offs].ravel()
@@ -308,6 +336,29 @@ def semihard_triplet_loss(emb: torch.Tensor, labels: torch.Tensor, margin: float
     return loss[pos].mean()
 
 
+def affinity_loss(emb: torch.Tensor, labels: torch.Tensor, positions: np.ndarray) -> torch.Tensor:
+    """Double-margin loss on the cosine similarity of unit embeddings of points within AFFINITY_RADIUS_M of each
+    other: one instance's pairs below LINK_POSITIVE and two instances' pairs above LINK_NEGATIVE cost the square of
+    the shortfall; the two kinds are averaged apart (different-instance neighbours are the rarer, and the ones that
+    merge objects). Points of no instance (label 0) take no part."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(positions).query_pairs(AFFINITY_RADIUS_M, output_type="ndarray")
+    if len(pairs) == 0:
+        return emb.sum() * 0.0
+    i, j = torch.from_numpy(pairs[:, 0]), torch.from_numpy(pairs[:, 1])
+    keep = (labels[i] > 0) & (labels[j] > 0)
+    i, j = i[keep], j[keep]
+    cos = (emb[i] * emb[j]).sum(dim=1)
+    same = labels[i] == labels[j]
+    loss = emb.sum() * 0.0
+    if same.any():
+        loss = loss + (LINK_POSITIVE - cos[same]).clamp_min(0.0).square().mean()
+    if (~same).any():
+        loss = loss + (cos[~same] - LINK_NEGATIVE).clamp_min(0.0).square().mean()
+    return loss
+
+
 def train_mcpnet(
     pool: Pool,
     cfg: NetConfig,
@@ -320,12 +371,16 @@ def train_mcpnet(
     per_mission: bool = False,
     class_weight_power: float = 0.0,
     local_batches: float = 0.0,
+    crop_batches: float = 0.0,
+    affinity_weight: float = 0.0,
 ) -> tuple[MCPNet, dict]:
     """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once.
     `class_weight_power` p weights each class's loss by (its share of the points)^-p: 0 sees the classes as the
     stream does, 0.5 lifts the rare ones (mean IoU counts every class alike). `local_batches`: the share of
     batches whose instances are neighbours in one mission (`Pool.local_instance_batch`); 0 draws no extra random
-    numbers, so recipes without it train as before."""
+    numbers, so recipes without it train as before. `crop_batches`: the share of batches that are a spatial crop
+    (`Pool.crop_batch`; drawn before the local ones), where `affinity_weight` weighs `affinity_loss` beside the
+    triplet loss (over the crop's points of an instance)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MCPNet(cfg)
@@ -343,8 +398,12 @@ def train_mcpnet(
     for epoch in range(epochs):
         tot_t = tot_c = acc = 0.0
         for _ in range(steps):
-            local = local_batches > 0 and rng.random() < local_batches
-            inst_idx = pool.local_instance_batch(rng) if local else pool.instance_batch(rng)
+            crop = crop_batches > 0 and rng.random() < crop_batches
+            local = not crop and local_batches > 0 and rng.random() < local_batches
+            if crop:
+                inst_idx = pool.crop_batch(rng)
+            else:
+                inst_idx = pool.local_instance_batch(rng) if local else pool.instance_batch(rng)
             uni_idx = rng.integers(0, len(pool), UNIFORM_POINTS)  # class frequencies as the stream sees them
             idx = np.concatenate([inst_idx, uni_idx])
             pf, ctx, _, wide, _ = pool.features(idx, rng, True, cfg, color_drop, per_mission)
@@ -361,7 +420,14 @@ def train_mcpnet(
             emb, logits = model.head(torch.from_numpy(pf), pooled)
             labels = torch.from_numpy(pool.sample_class[idx])
             inst = torch.from_numpy(pool.sample_instance[inst_idx])
-            lt = semihard_triplet_loss(emb[: len(inst_idx)], inst)
+            if crop:
+                of_object = inst > 0
+                lt = semihard_triplet_loss(emb[: len(inst_idx)][of_object], inst[of_object])
+                if affinity_weight > 0:
+                    where = pool.positions[pool.rows[inst_idx]]
+                    lt = lt + affinity_weight * affinity_loss(emb[: len(inst_idx)], inst, where)
+            else:
+                lt = semihard_triplet_loss(emb[: len(inst_idx)], inst)
             lc = ce(logits, labels)
             opt.zero_grad()
             (lt + lc).backward()
@@ -601,6 +667,8 @@ def train(
             "color_drop_per_mission": TRANSFER_COLOR_DROP,
             "class_weight_power": CLASS_WEIGHT_POWER,
             "local_batches": TRANSFER_LOCAL_BATCHES,
+            "crop_batches": TRANSFER_CROP_BATCHES,
+            "affinity_weight": TRANSFER_AFFINITY_WEIGHT,
             "training_points": len(pool),
             "epochs": TRANSFER_EPOCHS if epochs is None else epochs,
             "range_m": cfg.range_m,
@@ -617,6 +685,8 @@ def train(
             per_mission=True,
             class_weight_power=CLASS_WEIGHT_POWER,
             local_batches=TRANSFER_LOCAL_BATCHES,
+            crop_batches=TRANSFER_CROP_BATCHES,
+            affinity_weight=TRANSFER_AFFINITY_WEIGHT,
             checkpoint=lambda m, f: save_weights(partial, m, cfg, {**recipe, **f}),
         )
         keep("mcpnet-nocolor", model, cfg, recipe, fig)
