@@ -25,11 +25,16 @@ from aftershock.models.mcpnet import (
     save_weights,
 )
 from aftershock.models.mcpnet_train import (
+    AFFINITY_RADIUS_M,
     BATCH_INSTANCES,
+    CROP_POINTS,
     HELDOUT_SEEDS,
+    LINK_NEGATIVE,
+    LINK_POSITIVE,
     POINTS_PER_INSTANCE,
     TRAIN_SEEDS,
     Pool,
+    affinity_loss,
     mcpnet_config,
     semihard_triplet_loss,
     stage_uris,
@@ -163,6 +168,50 @@ def test_local_instance_batches_hold_neighbouring_instances_of_one_mission() -> 
     assert np.allclose(pool.positions[pool.rows[own]].mean(axis=0), pool.inst_centre[k])
     spread = {int(i >> 32) for _ in range(20) for i in pool.sample_instance[pool.instance_batch(rng)]}
     assert spread == {0, 1}
+
+
+def test_crop_batches_are_pieces_of_one_mission_with_boundaries() -> None:
+    """A crop: CROP_POINTS distinct training points of one mission, the nearest ones around a point, so it is a
+    compact piece of the map (never two missions' points, whose coordinates overlap) holding several instances."""
+    pool = Pool(stage_uris(transfer_uris((100,), 25)[:2], mcpnet_config(), log=False))
+    rng = np.random.default_rng(0)
+    several = 0
+    for _ in range(20):
+        crop = pool.crop_batch(rng)
+        assert len(crop) == CROP_POINTS == len(np.unique(crop))
+        assert len(np.unique(pool.mission[crop])) == 1
+        where = pool.positions[pool.rows[crop]]
+        assert np.ptp(where, axis=0).max() < 4.0  # 256 voxels of 0.1 m on surfaces: about a metre across
+        mine = pool.mission == pool.mission[crop[0]]
+        outside = pool.positions[pool.rows[np.setdiff1d(np.flatnonzero(mine), crop)]]
+        # the nearest points of one of its own: no point left out is nearer that anchor than a point taken
+        reach_in = np.linalg.norm(where[:, None] - where[None], axis=2).max(axis=1)
+        reach_out = np.linalg.norm(where[:, None] - outside[None], axis=2).min(axis=1)
+        assert (reach_in <= reach_out + 1e-9).any()
+        several += len(np.unique(pool.sample_instance[crop])) >= 2
+    assert several >= 15
+
+
+def test_affinity_loss_by_hand() -> None:
+    """Only pairs within AFFINITY_RADIUS_M count, points of no instance never; one instance's pairs cost their
+    shortfall below LINK_POSITIVE squared, two instances' their excess over LINK_NEGATIVE, averaged apart."""
+
+    def unit(deg: float) -> list[float]:
+        return [np.cos(np.radians(deg)), np.sin(np.radians(deg))]
+
+    emb = torch.tensor([unit(0), unit(30), unit(10), unit(90), unit(0)], dtype=torch.float32, requires_grad=True)
+    labels = torch.tensor([1, 1, 2, 2, 0])
+    r = AFFINITY_RADIUS_M
+    positions = np.array([[0, 0, 0], [0.5 * r, 0, 0], [0, 0.5 * r, 0], [10, 0, 0], [0, 0, 0.5 * r]])
+    loss = affinity_loss(emb, labels, positions)
+    same = (LINK_POSITIVE - np.cos(np.radians(30))) ** 2  # points 0 and 1
+    # points 0-2 (cos 10 deg) and 1-2 (cos 20 deg); point 3 is far, point 4 is of no instance
+    apart = np.mean([max(np.cos(np.radians(a)) - LINK_NEGATIVE, 0) ** 2 for a in (10, 20)])
+    assert float(loss) == pytest.approx(same + apart, rel=1e-5)
+    loss.backward()
+    assert emb.grad is not None and float(emb.grad[3].abs().sum()) == 0.0 and float(emb.grad[4].abs().sum()) == 0.0
+    lone = affinity_loss(emb, labels, positions * 100)  # no pairs in reach: no loss, still differentiable
+    assert float(lone) == 0.0 and lone.requires_grad
 
 
 def test_training_and_heldout_seeds_are_disjoint() -> None:
