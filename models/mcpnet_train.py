@@ -56,6 +56,9 @@ POINTS_PER_INSTANCE: Final = 16
 MARGIN: Final = 1.0
 UNIFORM_POINTS: Final = 128  # per batch, drawn over all points for the class loss only
 LEARNING_RATE: Final = 1e-3
+# The families' MCPNet (logs with colour): share of crop batches and affinity weight, as TRANSFER_* below
+CROP_BATCHES: Final = 0.0
+AFFINITY_WEIGHT: Final = 0.0
 COLOR_DROP: Final = 0.3  # the baselines: share of training points (PointNet: clouds) shown without colour
 # MCPNet since #12: trained to transfer. Randomised missions of the training generators (palettes, robots,
 # mounts, sensors, conditions), from scratch, colour dropped for half of the missions (a robot without a camera
@@ -648,8 +651,10 @@ def train(
         for kind in ("mcpnet", "mcpnet-nocontext"):
             if kind in kinds:
                 cfg = NetConfig(kind=kind)
-                model, fig = train_mcpnet(pool, cfg, EPOCHS if epochs is None else epochs, seed)
-                keep(kind, model, cfg, recipe, fig)
+                # crop batches for MCPNet only: the no-context network stays the baseline it was
+                crops = {"crop_batches": CROP_BATCHES, "affinity_weight": AFFINITY_WEIGHT} if kind == "mcpnet" else {}
+                model, fig = train_mcpnet(pool, cfg, EPOCHS if epochs is None else epochs, seed, **crops)
+                keep(kind, model, cfg, recipe | crops, fig)
         if "pointnet" in kinds:
             cfg = NetConfig(kind="pointnet")
             model, fig = train_pointnet(missions, cfg, POINTNET_EPOCHS if epochs is None else epochs, seed)
