@@ -56,9 +56,11 @@ POINTS_PER_INSTANCE: Final = 16
 MARGIN: Final = 1.0
 UNIFORM_POINTS: Final = 128  # per batch, drawn over all points for the class loss only
 LEARNING_RATE: Final = 1e-3
-# The families' MCPNet (logs with colour): share of crop batches and affinity weight, as TRANSFER_* below
+# The families' MCPNet (logs with colour): share of crop batches and affinity weight, as TRANSFER_* below, and
+# its epochs (EPOCHS unless set; the no-context baseline keeps EPOCHS)
 CROP_BATCHES: Final = 0.0
 AFFINITY_WEIGHT: Final = 0.0
+MCPNET_EPOCHS: Final[int | None] = None
 COLOR_DROP: Final = 0.3  # the baselines: share of training points (PointNet: clouds) shown without colour
 # MCPNet since #12: trained to transfer. Randomised missions of the training generators (palettes, robots,
 # mounts, sensors, conditions), from scratch, colour dropped for half of the missions (a robot without a camera
@@ -653,7 +655,8 @@ def train(
                 cfg = NetConfig(kind=kind)
                 # crop batches for MCPNet only: the no-context network stays the baseline it was
                 crops = {"crop_batches": CROP_BATCHES, "affinity_weight": AFFINITY_WEIGHT} if kind == "mcpnet" else {}
-                model, fig = train_mcpnet(pool, cfg, EPOCHS if epochs is None else epochs, seed, **crops)
+                own = MCPNET_EPOCHS if kind == "mcpnet" and MCPNET_EPOCHS is not None else EPOCHS
+                model, fig = train_mcpnet(pool, cfg, own if epochs is None else epochs, seed, **crops)
                 keep(kind, model, cfg, recipe | crops, fig)
         if "pointnet" in kinds:
             cfg = NetConfig(kind="pointnet")
