@@ -82,6 +82,7 @@ TRANSFER_LOCAL_BATCHES: Final = 0.0
 # colour): instance F1 0.308 -> 0.460 against the neighbour batches.
 TRANSFER_CROP_BATCHES: Final = 0.5
 TRANSFER_AFFINITY_WEIGHT: Final = 1.0
+TRANSFER_CROP_CLASS_LOSS: Final = True  # False: a crop batch's class loss on its uniform points only
 CROP_POINTS: Final = 256  # a crop: this many training points of one mission nearest a point of a random instance
 # The affinity loss acts where the clusterer decides: pairs of points in neighbouring 0.1 m voxels (the 26 around
 # one lie within sqrt(3) x 0.1 m). One instance's neighbours are pulled above LINK_POSITIVE cosine similarity (the
@@ -381,6 +382,7 @@ def train_mcpnet(
     local_batches: float = 0.0,
     crop_batches: float = 0.0,
     affinity_weight: float = 0.0,
+    crop_class_loss: bool = True,
 ) -> tuple[MCPNet, dict]:
     """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once.
     `class_weight_power` p weights each class's loss by (its share of the points)^-p: 0 sees the classes as the
@@ -388,7 +390,8 @@ def train_mcpnet(
     batches whose instances are neighbours in one mission (`Pool.local_instance_batch`); 0 draws no extra random
     numbers, so recipes without it train as before. `crop_batches`: the share of batches that are a spatial crop
     (`Pool.crop_batch`; drawn before the local ones), where `affinity_weight` weighs `affinity_loss` beside the
-    triplet loss (over the crop's points of an instance)."""
+    triplet loss (over the crop's points of an instance); without `crop_class_loss` a crop batch's class loss
+    sees only its uniformly drawn points (a crop is mostly the floor and walls around one object)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MCPNet(cfg)
@@ -436,7 +439,10 @@ def train_mcpnet(
                     lt = lt + affinity_weight * affinity_loss(emb[: len(inst_idx)], inst, where)
             else:
                 lt = semihard_triplet_loss(emb[: len(inst_idx)], inst)
-            lc = ce(logits, labels)
+            if crop and not crop_class_loss:
+                lc = ce(logits[len(inst_idx) :], labels[len(inst_idx) :])
+            else:
+                lc = ce(logits, labels)
             opt.zero_grad()
             (lt + lc).backward()
             opt.step()
@@ -680,6 +686,7 @@ def train(
             "local_batches": TRANSFER_LOCAL_BATCHES,
             "crop_batches": TRANSFER_CROP_BATCHES,
             "affinity_weight": TRANSFER_AFFINITY_WEIGHT,
+            "crop_class_loss": TRANSFER_CROP_CLASS_LOSS,
             "training_points": len(pool),
             "epochs": TRANSFER_EPOCHS if epochs is None else epochs,
             "range_m": cfg.range_m,
@@ -698,6 +705,7 @@ def train(
             local_batches=TRANSFER_LOCAL_BATCHES,
             crop_batches=TRANSFER_CROP_BATCHES,
             affinity_weight=TRANSFER_AFFINITY_WEIGHT,
+            crop_class_loss=TRANSFER_CROP_CLASS_LOSS,
             checkpoint=lambda m, f: save_weights(partial, m, cfg, {**recipe, **f}),
         )
         keep("mcpnet-nocolor", model, cfg, recipe, fig)
