@@ -82,7 +82,9 @@ TRANSFER_LOCAL_BATCHES: Final = 0.0
 # colour): instance F1 0.308 -> 0.460 against the neighbour batches.
 TRANSFER_CROP_BATCHES: Final = 0.5
 TRANSFER_AFFINITY_WEIGHT: Final = 1.0
-TRANSFER_CROP_CLASS_LOSS: Final = True  # False: a crop batch's class loss on its uniform points only
+# Weight of a crop batch's own 256 points in its class loss beside its uniformly drawn ones (1: alike, as shipped;
+# 0: the uniform points only). A crop is mostly the floor and walls around one object, so it skews the classes.
+TRANSFER_CROP_CLASS_WEIGHT: Final = 1.0
 CROP_POINTS: Final = 256  # a crop: this many training points of one mission nearest a point of a random instance
 # The affinity loss acts where the clusterer decides: pairs of points in neighbouring 0.1 m voxels (the 26 around
 # one lie within sqrt(3) x 0.1 m). One instance's neighbours are pulled above LINK_POSITIVE cosine similarity (the
@@ -368,6 +370,18 @@ def affinity_loss(emb: torch.Tensor, labels: torch.Tensor, positions: np.ndarray
     return loss
 
 
+def weighted_class_loss(
+    ce: nn.CrossEntropyLoss, logits: torch.Tensor, labels: torch.Tensor, head: int, head_weight: float
+) -> torch.Tensor:
+    """`ce`'s weighted mean with the first `head` points counting `head_weight` each (the others 1): with 0 it is
+    `ce` over the rest alone."""
+    per_point = nn.functional.cross_entropy(logits, labels, weight=ce.weight, reduction="none")
+    share = torch.ones(len(labels))
+    share[:head] = head_weight
+    class_weight = ce.weight[labels] if ce.weight is not None else torch.ones(len(labels))
+    return (per_point * share).sum() / (class_weight * share).sum()
+
+
 def train_mcpnet(
     pool: Pool,
     cfg: NetConfig,
@@ -382,7 +396,7 @@ def train_mcpnet(
     local_batches: float = 0.0,
     crop_batches: float = 0.0,
     affinity_weight: float = 0.0,
-    crop_class_loss: bool = True,
+    crop_class_weight: float = 1.0,
 ) -> tuple[MCPNet, dict]:
     """Adam on triplet + cross-entropy; an epoch is as many batches as it takes to see every point once.
     `class_weight_power` p weights each class's loss by (its share of the points)^-p: 0 sees the classes as the
@@ -390,8 +404,9 @@ def train_mcpnet(
     batches whose instances are neighbours in one mission (`Pool.local_instance_batch`); 0 draws no extra random
     numbers, so recipes without it train as before. `crop_batches`: the share of batches that are a spatial crop
     (`Pool.crop_batch`; drawn before the local ones), where `affinity_weight` weighs `affinity_loss` beside the
-    triplet loss (over the crop's points of an instance); without `crop_class_loss` a crop batch's class loss
-    sees only its uniformly drawn points (a crop is mostly the floor and walls around one object)."""
+    triplet loss (over the crop's points of an instance); `crop_class_weight` weighs a crop batch's own points in
+    its class loss against its uniformly drawn ones (0: the uniform points only; a crop is mostly the floor and
+    walls around one object)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = MCPNet(cfg)
@@ -439,8 +454,8 @@ def train_mcpnet(
                     lt = lt + affinity_weight * affinity_loss(emb[: len(inst_idx)], inst, where)
             else:
                 lt = semihard_triplet_loss(emb[: len(inst_idx)], inst)
-            if crop and not crop_class_loss:
-                lc = ce(logits[len(inst_idx) :], labels[len(inst_idx) :])
+            if crop and crop_class_weight != 1.0:
+                lc = weighted_class_loss(ce, logits, labels, len(inst_idx), crop_class_weight)
             else:
                 lc = ce(logits, labels)
             opt.zero_grad()
@@ -689,7 +704,7 @@ def train(
             "local_batches": TRANSFER_LOCAL_BATCHES,
             "crop_batches": TRANSFER_CROP_BATCHES,
             "affinity_weight": TRANSFER_AFFINITY_WEIGHT,
-            "crop_class_loss": TRANSFER_CROP_CLASS_LOSS,
+            "crop_class_weight": TRANSFER_CROP_CLASS_WEIGHT,
             "training_points": len(pool),
             "epochs": TRANSFER_EPOCHS if epochs is None else epochs,
             "range_m": cfg.range_m,
@@ -708,7 +723,7 @@ def train(
             local_batches=TRANSFER_LOCAL_BATCHES,
             crop_batches=TRANSFER_CROP_BATCHES,
             affinity_weight=TRANSFER_AFFINITY_WEIGHT,
-            crop_class_loss=TRANSFER_CROP_CLASS_LOSS,
+            crop_class_weight=TRANSFER_CROP_CLASS_WEIGHT,
             checkpoint=lambda m, f: save_weights(partial, m, cfg, {**recipe, **f}),
         )
         keep("mcpnet-nocolor", model, cfg, recipe, fig)

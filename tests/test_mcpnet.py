@@ -39,6 +39,7 @@ from aftershock.models.mcpnet_train import (
     semihard_triplet_loss,
     stage_uris,
     transfer_uris,
+    weighted_class_loss,
 )
 from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.classes import NUM_CLASSES, UNLABELLED
@@ -212,6 +213,23 @@ def test_affinity_loss_by_hand() -> None:
     assert emb.grad is not None and float(emb.grad[3].abs().sum()) == 0.0 and float(emb.grad[4].abs().sum()) == 0.0
     lone = affinity_loss(emb, labels, positions * 100)  # no pairs in reach: no loss, still differentiable
     assert float(lone) == 0.0 and lone.requires_grad
+
+
+@pytest.mark.parametrize("class_weights", [None, [1.0, 3.0, 0.5]])
+def test_crop_points_class_loss_weight(class_weights: list[float] | None) -> None:
+    """A crop batch's class loss: its own points at weight 1 count as the uniform ones (the plain mean), at 0 not
+    at all (the mean over the uniform ones), at 0.5 half as much as each uniform point."""
+    gen = torch.Generator().manual_seed(0)
+    logits, labels = torch.randn(10, 3, generator=gen), torch.randint(0, 3, (10,), generator=gen)
+    w = None if class_weights is None else torch.tensor(class_weights)
+    ce = torch.nn.CrossEntropyLoss(weight=w)
+    assert float(weighted_class_loss(ce, logits, labels, 4, 1.0)) == pytest.approx(float(ce(logits, labels)))
+    assert float(weighted_class_loss(ce, logits, labels, 4, 0.0)) == pytest.approx(float(ce(logits[4:], labels[4:])))
+    per = torch.nn.functional.cross_entropy(logits, labels, reduction="none")
+    cw = torch.ones(3) if w is None else w
+    share = torch.tensor([0.5] * 4 + [1.0] * 6) * cw[labels]
+    by_hand = float((per * share).sum() / share.sum())
+    assert float(weighted_class_loss(ce, logits, labels, 4, 0.5)) == pytest.approx(by_hand)
 
 
 def test_training_and_heldout_seeds_are_disjoint() -> None:
