@@ -32,6 +32,8 @@ class SemanticScores:
     per_class_iou: dict[str, float]
     per_class_accuracy: dict[str, float]
     points: int
+    # where each true class's points went: {true class: {predicted class or "unlabelled": points}}, non-zero only
+    confusion: dict[str, dict[str, int]]
 
 
 @dataclass(slots=True)
@@ -83,6 +85,10 @@ def semantic_scores(
         per_class_iou={names[c]: float(iou[c]) for c in np.flatnonzero(present)},
         per_class_accuracy={names[c]: float(acc[c]) for c in np.flatnonzero(present)},
         points=total,
+        confusion={
+            names[t]: {(names[p] if p < num_classes else "unlabelled"): int(cm[t, p]) for p in np.flatnonzero(cm[t])}
+            for t in np.flatnonzero(present)
+        },
     )
 
 

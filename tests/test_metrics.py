@@ -25,6 +25,7 @@ def test_semantic_scores_by_hand() -> None:
     assert s.mean_iou == pytest.approx(0.5)
     assert s.per_class_iou == pytest.approx({"ceiling": 0.5, "floor": 0.5, "wall": 0.5})
     assert s.points == 6
+    assert s.confusion == {"ceiling": {"ceiling": 1, "floor": 1}, "floor": {"floor": 2, "wall": 1}, "wall": {"wall": 1}}
 
 
 def test_unlabelled_truth_is_left_out_and_unlabelled_prediction_is_wrong() -> None:
@@ -35,6 +36,7 @@ def test_unlabelled_truth_is_left_out_and_unlabelled_prediction_is_wrong() -> No
     assert s.overall_accuracy == pytest.approx(0.5)
     # class 0: tp 1, 2 true, 1 predicted among the evaluated points -> IoU 1 / 2
     assert s.per_class_iou == pytest.approx({"ceiling": 0.5})
+    assert s.confusion == {"ceiling": {"ceiling": 1, "unlabelled": 1}}
     cm = confusion_matrix(true, pred)
     assert cm[0, 0] == 1 and cm[0, -1] == 1 and cm.sum() == 2
 

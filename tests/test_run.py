@@ -39,6 +39,7 @@ EVAL_KEYS = (
     "scans",
     "scans_per_second",
     "level_tilt_deg",
+    "confusion",
 )
 
 
@@ -156,6 +157,9 @@ def test_eval_scores_a_log_with_truth(tmp_path: Path, capsys) -> None:
     assert 0.5 < rep["overall_accuracy"] <= 1.0  # floor, ceiling and walls follow the geometric rules
     assert {"floor", "ceiling", "wall", "table"} <= set(rep["per_class_iou"])
     assert rep["per_class_iou"]["floor"] > 0.5 and rep["per_class_iou"]["table"] == 0.0
+    # where the points went: every true class's row sums to its points, and the table's never say table
+    assert sum(sum(row.values()) for row in rep["confusion"].values()) == rep["evaluated_points"]
+    assert "table" not in rep["confusion"]["table"]
     for key in ("nmi", "ami", "ari", "precision", "recall"):
         assert 0.0 <= rep[key] <= 1.0
     assert rep["nmi"] > 0.3

@@ -46,6 +46,7 @@ def evaluate_map(vmap: VoxelMap) -> dict[str, Any]:
         "mean_iou": sem.mean_iou,
         "per_class_iou": sem.per_class_iou,
         "per_class_accuracy": sem.per_class_accuracy,
+        "confusion": sem.confusion,
         "nmi": clu.nmi,
         "ami": clu.ami,
         "ari": clu.ari,
