@@ -79,9 +79,10 @@ CLASS_WEIGHT_POWER: Final = 0.0
 TRANSFER_LOCAL_BATCHES: Final = 0.0
 # Share of batches drawn as a spatial crop (`Pool.crop_batch`), and the weight of the affinity loss on the crop's
 # neighbouring points (`affinity_loss`); 0 = neither. Chosen on 54 validation missions (README, objects without
-# colour): instance F1 0.308 -> 0.460 against the neighbour batches.
-TRANSFER_CROP_BATCHES: Final = 0.5
-TRANSFER_AFFINITY_WEIGHT: Final = 1.0
+# colour): instance F1 0.308 -> 0.460 against the neighbour batches (crops 0.5, affinity 1, shipped 23:40 UTC),
+# then 0.460 -> 0.508 with crops 0.75 and affinity 3 (round D, 02:55 UTC; 9 epochs at 0.5 / 3 lost to it).
+TRANSFER_CROP_BATCHES: Final = 0.75
+TRANSFER_AFFINITY_WEIGHT: Final = 3.0
 # Weight of a crop batch's own 256 points in its class loss beside its uniformly drawn ones (1: alike, as shipped;
 # 0: the uniform points only). A crop is mostly the floor and walls around one object, so it skews the classes.
 TRANSFER_CROP_CLASS_WEIGHT: Final = 1.0
