@@ -379,7 +379,7 @@ def weighted_class_loss(
     per_point = nn.functional.cross_entropy(logits, labels, weight=ce.weight, reduction="none")
     share = torch.ones(len(labels))
     share[:head] = head_weight
-    class_weight = ce.weight[labels] if ce.weight is not None else torch.ones(len(labels))
+    class_weight = ce.weight[labels] if ce.weight is not None else 1.0
     return (per_point * share).sum() / (class_weight * share).sum()
 
 
@@ -455,6 +455,7 @@ def train_mcpnet(
                     lt = lt + affinity_weight * affinity_loss(emb[: len(inst_idx)], inst, where)
             else:
                 lt = semihard_triplet_loss(emb[: len(inst_idx)], inst)
+            # at weight 1 the plain mean: the same value, and the shipped recipes rebuild bit for bit
             if crop and crop_class_weight != 1.0:
                 lc = weighted_class_loss(ce, logits, labels, len(inst_idx), crop_class_weight)
             else:
