@@ -21,7 +21,8 @@ import numpy as np
 import pytest
 import torch
 
-from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, validation_rooms, without_colour
+from aftershock.models import transfer_split as split
+from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, without_colour
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.refine import DEFAULT_WEIGHTS, baseline_cloud, load_network, refine_cloud, scores
@@ -33,7 +34,14 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
 
 ROOMS_PER_GENERATOR: Final = 6
 SEARCH_ROOMS: Final = 1  # rooms per generator for the (~10x slower) local searches
-VALIDATION_ROOMS: Final = 4  # per generator (the hall's buildings are one room)
+VALIDATION_ROOMS: Final = 4  # per validation building (the hall's buildings are one room)
+# Validation buildings of each training generator the choice runs on: both since round G (the README's earlier
+# choices ran on seed 800 alone, `LRGNET_VALIDATION_SEEDS=800` gives their rooms back)
+VALIDATION_SEEDS: Final = tuple(
+    int(s) for s in os.environ.get("LRGNET_VALIDATION_SEEDS", ",".join(map(str, split.VALIDATION_SEEDS))).split(",")
+)
+# Which colour modes the choice runs (`LRGNET_VALIDATION_MODES=none` for the colour-free cells alone)
+VALIDATION_MODES: Final = tuple(os.environ.get("LRGNET_VALIDATION_MODES", "rgb,none").split(","))
 KEYS: Final = ("nmi", "ami", "ari", "precision", "recall", "mean_iou")
 SPEED_POINTS: Final = 100_000
 
@@ -123,32 +131,41 @@ def test_local_search(rooms: dict[str, list[LabelledCloud]]) -> None:
         _print_table(f"held-out {g} rooms, local search ({SEARCH_ROOMS} rooms)", table, per_scene=False)
 
 
+def _validation_rooms(generator: str) -> list[LabelledCloud]:
+    """VALIDATION_ROOMS rooms of each of a generator's validation buildings (no training room comes from them)."""
+    out = []
+    for seed in VALIDATION_SEEDS:
+        if seed not in split.VALIDATION_SEEDS:
+            raise ValueError(f"LRGNET_VALIDATION_SEEDS: {seed} is not a validation seed {split.VALIDATION_SEEDS}")
+        rooms = building_rooms(generator, seed)
+        pick = np.random.default_rng(0).permutation(len(rooms))[:VALIDATION_ROOMS]
+        out += [rooms[i] for i in sorted(pick)]
+    return out
+
+
 def test_validation_choice() -> None:
     """Candidate weights (LRGNET_CANDIDATE) and inference settings (LRGNET_SETTINGS, `;`-separated
-    `key=value,...` sets) on rooms of the validation buildings, rgb and without colour; never held-out data."""
+    `key=value,...` sets) on rooms of the validation buildings, rgb and without colour; never held-out data.
+    Each cell (generator x colour) is the mean over its rooms; per-cell AMI / ARI are printed for paired reading."""
     torch.set_num_threads(1)
     weights = os.environ.get("LRGNET_CANDIDATE") or _weights()
     sets = [dict(kv.split("=") for kv in s.split(",") if kv) for s in os.environ.get("LRGNET_SETTINGS", "").split(";")]
-    val = {}
-    for g in GENERATORS:
-        all_rooms = validation_rooms(g)
-        pick = np.random.default_rng(0).permutation(len(all_rooms))[:VALIDATION_ROOMS]
-        val[g] = [all_rooms[i] for i in sorted(pick)]
+    val = {g: _validation_rooms(g) for g in GENERATORS}
     for updates in sets:
         cells = {}
         for g, rs in val.items():
-            for colour in (True, False):
-                rows = _lrgnet(rs if colour else [without_colour(r) for r in rs], weights, **updates)
-                cells[(g, colour)] = _mean(rows)
+            for mode in VALIDATION_MODES:
+                rows = _lrgnet(rs if mode == "rgb" else [without_colour(r) for r in rs], weights, **updates)
+                cells[(g, mode)] = _mean(rows)
         m = {k: float(np.mean([c[k] for c in cells.values()])) for k in KEYS}
-        mono = {k: float(np.mean([c[k] for (_, col), c in cells.items() if not col])) for k in KEYS}
-        print(
-            f"validation {weights} {updates or 'defaults'}: "
-            + " ".join(f"{k} {m[k]:.3f}" for k in KEYS)
-            + " | no colour "
-            + " ".join(f"{k} {mono[k]:.3f}" for k in ("ami", "ari", "precision", "recall")),
-            flush=True,
+        line = f"validation {weights} seeds {VALIDATION_SEEDS} {updates or 'defaults'}: " + " ".join(
+            f"{k} {m[k]:.3f}" for k in KEYS
         )
+        for mode in VALIDATION_MODES:
+            mm = {k: float(np.mean([c[k] for (_, md), c in cells.items() if md == mode])) for k in KEYS}
+            line += f" | {mode} " + " ".join(f"{k} {mm[k]:.3f}" for k in ("ami", "ari", "precision", "recall"))
+        line += " | cells " + " ".join(f"{g}/{md} {c['ami']:.3f}/{c['ari']:.3f}" for (g, md), c in cells.items())
+        print(line, flush=True)
 
 
 def test_speed_100k() -> None:
