@@ -224,12 +224,14 @@ def without_colour(cloud: LabelledCloud) -> LabelledCloud:
     return LabelledCloud(cloud.points, None, cloud.intensity, cloud.class_ids, cloud.instance_ids)
 
 
-def room_variant(cloud: LabelledCloud, rng: np.random.Generator) -> LabelledCloud:
+def room_variant(
+    cloud: LabelledCloud, rng: np.random.Generator, colour_free_share: float = COLOUR_FREE_SHARE
+) -> LabelledCloud:
     """A training room as another scan might see it: points jittered and thinned, colour dropped for a share."""
     keep = rng.random(len(cloud)) < rng.uniform(*KEEP_FRACTION)
     out = cloud.select(keep)
     out.points = out.points + rng.normal(0.0, rng.uniform(0.0, JITTER_M), out.points.shape)
-    return without_colour(out) if rng.random() < COLOUR_FREE_SHARE else out
+    return without_colour(out) if rng.random() < colour_free_share else out
 
 
 def make_samples(
@@ -412,23 +414,31 @@ def validation_rooms(generator: str) -> list[LabelledCloud]:
     return [r for b in VALIDATION_SEEDS[generator] for r in building_rooms(generator, b)]
 
 
-def generator_samples(generator: str, cfg: LRGNetConfig, seed: int) -> tuple[Samples, Samples, int]:
+def generator_samples(
+    generator: str, cfg: LRGNetConfig, seed: int, colour_free_share: float = COLOUR_FREE_SHARE
+) -> tuple[Samples, Samples, int]:
     """Training samples of one generator (rooms varied by `room_variant`, at most GENERATOR_SAMPLES) and
     validation samples (VAL_LOSS_ROOMS validation rooms, half without colour), and the number of training rooms."""
     rng = np.random.default_rng([seed, GENERATORS.index(generator)])
     train_rooms = training_rooms(generator)
-    train_set = make_samples([room_variant(r, rng) for r in train_rooms], cfg, rng)
+    train_set = make_samples([room_variant(r, rng, colour_free_share) for r in train_rooms], cfg, rng)
     val = [without_colour(r) if i % 2 else r for i, r in enumerate(validation_rooms(generator)[:VAL_LOSS_ROOMS])]
     return _cap(train_set, GENERATOR_SAMPLES, rng), make_samples(val, cfg, rng), len(train_rooms)
 
 
-def checkpoint_path(seed: int, epoch: int) -> Path:
-    return cache_dir() / "checkpoints" / f"lrgnet_seed{seed}_epoch{epoch}.pt"
+def checkpoint_path(seed: int, epoch: int, name: str = "lrgnet") -> Path:
+    return cache_dir() / "checkpoints" / f"{name}_seed{seed}_epoch{epoch}.pt"
 
 
-def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, force: bool = False) -> dict:
-    """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt);
-    the same seed gives the same file."""
+def train(
+    out: Path | None = None,
+    seed: int = 0,
+    epochs: int | None = None,
+    force: bool = False,
+    colour_free_share: float = COLOUR_FREE_SHARE,
+) -> dict:
+    """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt), a
+    share of them without colour (1 = a network for clouds without colour); the same seed gives the same file."""
     from aftershock.pipeline.refine import DEFAULT_WEIGHTS, weight_settings
 
     torch.set_num_threads(1)  # measured faster than 2 threads on the shared 2-core machine
@@ -437,7 +447,7 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
     n_epochs = epochs if epochs is not None else EPOCHS
     cfg = LRGNetConfig()
     t0 = time.perf_counter()
-    data = [generator_samples(g, cfg, seed) for g in GENERATORS]
+    data = [generator_samples(g, cfg, seed, colour_free_share) for g in GENERATORS]
     train_set, val_set = data[0][0], data[0][1]
     for tr, va, _ in data[1:]:
         train_set, val_set = merge(train_set, tr), merge(val_set, va)
@@ -445,7 +455,7 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
     data_seconds = time.perf_counter() - t0
     settings = {
         **weight_settings(cfg), "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
-        "trajectory_steps": TRAJECTORY_STEPS, "colour_free_share": COLOUR_FREE_SHARE, "seed": seed,
+        "trajectory_steps": TRAJECTORY_STEPS, "colour_free_share": colour_free_share, "seed": seed,
     }  # fmt: skip
     base = {
         "generators": list(GENERATORS),
@@ -458,7 +468,7 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
     }
 
     def checkpoint(net: LRGNet, epoch: int, history: list[dict[str, Any]]) -> None:
-        p = checkpoint_path(seed, epoch)
+        p = checkpoint_path(seed, epoch, path.stem)
         p.parent.mkdir(parents=True, exist_ok=True)
         save_weights(p, net, settings, {**base, "epochs": epoch, "history": history})
         log.info("checkpoint %s", p)
