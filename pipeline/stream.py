@@ -331,7 +331,10 @@ def _run(
                     error = error or exc
         if on_final_map is not None and not summary.interrupted and len(vmap):
             try:
-                on_final_map(vmap.to_cloud(), sinks)
+                final_map = vmap.to_cloud()
+                if not vmap.has_colour:  # a log without colour: the on-demand stages see none, not the map's grey
+                    final_map.colors = None
+                on_final_map(final_map, sinks)
             except (Exception, KeyboardInterrupt) as exc:  # the run's own outputs are still finished below
                 error = exc
         with _no_interrupts():

@@ -28,7 +28,7 @@ from aftershock.models.lrgnet_train import (
 from aftershock.models.transfer_split import HELDOUT_GENERATOR
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
-from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.config import LRGNET_MODE_DEFAULTS, LRGNetConfig
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
 from aftershock.pipeline.refine import LAYOUTS, baseline_cloud, load_network, refine_cloud, scores, weight_settings
@@ -423,6 +423,26 @@ def test_weights_of_the_older_layout_read_its_first_columns(tmp_path: Path) -> N
     by_hand = attach_small_segments(vc.points, seg.labels, cfg.min_segment_points)[vc.voxel_of_point]
     assert np.array_equal(res.instance_ids, by_hand) and res.steps_per_object == seg.steps_per_object
     assert len(np.unique(res.instance_ids)) > 1
+
+
+def test_settings_follow_the_clouds_colour_mode() -> None:
+    """Growth and consolidation take the defaults of the cloud's mode (with colour or without), a value the user
+    sets serves both modes, and `refine_cloud` on a cloud without colour is the run with the colour-free values
+    given by hand."""
+    mono = small_room()
+    mono.colors = None
+    with_colour, without = LRGNET_MODE_DEFAULTS[True], LRGNET_MODE_DEFAULTS[False]
+    assert with_colour.keys() == without.keys() and with_colour != without
+    assert LRGNetConfig().for_colour(True).model_dump(include=set(with_colour)) == with_colour
+    assert LRGNetConfig().for_colour(False).model_dump(include=set(without)) == without
+    assert LRGNetConfig(add_threshold=0.7).for_colour(False).add_threshold == 0.7
+    net = LRGNet().eval()
+    assert Grower(voxelise(mono, 0.1), net, LRGNetConfig()).cfg.add_threshold == without["add_threshold"]
+    assert Grower(voxelise(small_room(), 0.1), net, LRGNetConfig()).cfg.add_threshold == with_colour["add_threshold"]
+    cfg = LRGNetConfig(max_steps=20)
+    by_default = refine_cloud(mono, cfg).instance_ids
+    assert np.array_equal(by_default, refine_cloud(mono, LRGNetConfig(max_steps=20, **without)).instance_ids)
+    assert not np.array_equal(by_default, refine_cloud(mono, LRGNetConfig(max_steps=20, **with_colour)).instance_ids)
 
 
 def test_shipped_weights_segment_a_simple_room() -> None:

@@ -409,3 +409,20 @@ def test_a_truth_stand_in_on_a_log_without_truth_is_refused(lidar_dir: Path, cap
     log = lidar_dir / "velodyne_vlp16_indoor.mcap"
     code, _, err = _run_cli(["run", str(log), "--set", "label.oracle=objects"], capsys)
     assert code == 2 and "needs a log with ground truth" in err and str(log) in err
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_the_on_demand_stages_see_whether_the_log_had_colour(color: bool) -> None:
+    """LRGNet and the damage assessment get the final map without colour when no scan had any (not the map's
+    stand-in grey), so that a colour-free log is refined with the colour-free settings."""
+    from aftershock import sources
+
+    uri = "sim://office?seed=5&sensor=vlp16&scans=3" + ("" if color else "&color=0")
+    seen: list = []
+    cfg = load_config(None, ["label.labeller=region-growing"])
+    res = run_stream(
+        sources.open(uri), cfg, [], RunInfo(source=uri, source_kind="sim"), lambda _t: None,
+        on_final_map=lambda cloud, _sinks: seen.append(cloud),
+    )  # fmt: skip
+    assert len(seen) == 1 and len(seen[0]) == len(res.vmap) > 0
+    assert res.vmap.has_colour is color and (seen[0].colors is not None) is color

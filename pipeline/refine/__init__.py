@@ -79,6 +79,7 @@ def refine_cloud(
     except ValueError:
         raise InputError(f"unknown search {cfg.search!r} (greedy, restart or beam)") from None
     net = net or load_network(cfg)
+    cfg = cfg.for_colour(cloud.colors is not None)  # growth and consolidation settings of the cloud's mode
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)

@@ -42,6 +42,7 @@ class VoxelCloud:
     adjacency: np.ndarray  # (M, K) int64 indices of the occupied neighbouring voxels, -1 where empty
     voxel_of_point: np.ndarray  # (N,) int64 voxel index of every raw point
     first_point: np.ndarray  # (M,) int64 index of the first raw point of every voxel (for its labels)
+    colour: bool = True  # the cloud had colour (without, the colour features are zero)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -131,7 +132,7 @@ def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None)
     xyz = centroid.copy()
     xyz[:, 2] -= lo[2]
     features = np.concatenate([xyz, room, rgb, normals, curvature[:, None], shape], axis=1).astype(np.float32)
-    return VoxelCloud(centroid, features, curvature, adjacency, inverse, first)
+    return VoxelCloud(centroid, features, curvature, adjacency, inverse, first, cloud.colors is not None)
 
 
 def region_centre(features: np.ndarray, region: np.ndarray) -> np.ndarray:

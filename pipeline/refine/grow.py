@@ -68,7 +68,7 @@ class Grower:
     def __init__(self, vc: VoxelCloud, net: LRGNet, cfg: LRGNetConfig) -> None:
         self.vc = vc
         self.net = net
-        self.cfg = cfg
+        self.cfg = cfg.for_colour(vc.colour)  # the add threshold depends on whether the cloud has colour
         self.rng = np.random.default_rng(cfg.seed)
         self.labelled = np.zeros(len(vc), bool)
         self._touched = np.zeros(len(vc), bool)
