@@ -212,14 +212,13 @@ class LRGNetConfig(_Section):
         return self.model_copy(update=unset) if unset else self
 
 
-# LRGNet's mode-dependent defaults, with colour (True) and without (False). With colour: add threshold 0.5 (beat 0.3
-# on validation), coplanar merge 5 deg / 5 cm (best of 3/0.03, 5/0.05, 10/0.1, 20/0.1), crease split 15 deg / 50
-# voxels. Without colour, round G (validation buildings 800/801 of the training generators, the shipped network):
-# a lower add threshold, a finer crease split and a wider merge, (AMI + ARI) / 2 0.717 -> 0.749; with colour the same
-# search gained less than the 0.01 its rule asked (0.774 -> 0.782), so those stay (README).
+# LRGNet's mode-dependent defaults, with colour (True) and without (False), chosen on validation buildings 800/801
+# of the training generators with the shipped network (rounds G and G4, README; S = (AMI + ARI) / 2 over 3 cells).
+# With colour: add threshold 0.3 and crease split 15 deg / 20 voxels (S 0.774 -> 0.785), coplanar merge 5 deg / 5 cm.
+# Without colour: add threshold 0.4, crease split 10 deg / 20 voxels, merge 10 deg / 10 cm (S 0.717 -> 0.749).
 LRGNET_MODE_DEFAULTS: Final[dict[bool, dict[str, float]]] = {
-    True: {"add_threshold": 0.5, "merge_angle_deg": 5.0, "merge_offset_m": 0.05, "crease_angle_deg": 15.0,
-           "crease_min_voxels": 50},
+    True: {"add_threshold": 0.3, "merge_angle_deg": 5.0, "merge_offset_m": 0.05, "crease_angle_deg": 15.0,
+           "crease_min_voxels": 20},
     False: {"add_threshold": 0.4, "merge_angle_deg": 10.0, "merge_offset_m": 0.1, "crease_angle_deg": 10.0,
             "crease_min_voxels": 20},
 }  # fmt: skip

@@ -184,7 +184,7 @@ def test_network_shapes_parameters_and_batch_independence() -> None:
 # ----------------------------------------------------------------------------- growth
 def test_growth_covers_a_connected_object_and_stops_without_neighbours() -> None:
     cloud = apart_boxes()
-    cfg = LRGNetConfig(min_segment_points=1)
+    cfg = LRGNetConfig(min_segment_points=1, crease_angle_deg=0)  # growth alone: no crease split of the box faces
     truth = cloud.instance_ids
     first = refine_cloud(cloud, cfg, net=biased_net(add=20.0))
     box = int(first.instance_ids[truth == 2][0])
@@ -244,7 +244,8 @@ def test_growth_stops_when_the_region_does_not_expand_for_two_steps() -> None:
 
 def test_small_segments_take_the_label_of_their_nearest_neighbour() -> None:
     cloud = apart_boxes()
-    res = refine_cloud(cloud, LRGNetConfig(min_segment_points=10), net=biased_net(add=20.0))
+    cfg = LRGNetConfig(min_segment_points=10, crease_angle_deg=0)  # growth and clean-up alone, no crease split
+    res = refine_cloud(cloud, cfg, net=biased_net(add=20.0))
     frag, box1 = cloud.instance_ids == 3, cloud.instance_ids == 1
     assert len(np.unique(res.instance_ids[frag])) == 1
     assert res.instance_ids[frag][0] == res.instance_ids[box1][0]
