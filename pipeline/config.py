@@ -182,7 +182,7 @@ class LRGNetConfig(_Section):
     seed: Seed = 0
     weights: str | None = None
     remove_threshold: Fraction = 0.9  # greedy: an inlier goes when P(remove) exceeds this (its loss is class-balanced)
-    # The next five depend on whether the cloud has colour: None = the default of its mode (LRGNET_MODE_DEFAULTS);
+    # The next six depend on whether the cloud has colour: None = the default of its mode (LRGNET_MODE_DEFAULTS);
     # a value given here serves both modes.
     # greedy: a neighbour joins when P(add) exceeds this
     add_threshold: Fraction | None = None
@@ -194,6 +194,9 @@ class LRGNetConfig(_Section):
     # voxels, smooth within this angle, become their own segments; 0 turns it off.
     crease_angle_deg: NonNegative | None = None
     crease_min_voxels: Count | None = None
+    # While a grown region is a plane, it takes only voxels whose normals lie within this angle of its normal
+    # (pipeline.refine.grow.Grower.within_plane); 0 = off.
+    flat_gate_deg: NonNegative | None = None
     # Baselines run beside LRGNet (pipeline.refine.baselines)
     baseline_normal_angle_deg: Angle = 10.0  # threshold region growing: normals within this angle (tuned)
     baseline_color_distance: NonNegative = 0.12  # ... and RGB (0..1) closer than this
@@ -218,9 +221,9 @@ class LRGNetConfig(_Section):
 # Without colour: add threshold 0.4, crease split 10 deg / 20 voxels, merge 10 deg / 10 cm (S 0.717 -> 0.749).
 LRGNET_MODE_DEFAULTS: Final[dict[bool, dict[str, float]]] = {
     True: {"add_threshold": 0.3, "merge_angle_deg": 5.0, "merge_offset_m": 0.05, "crease_angle_deg": 15.0,
-           "crease_min_voxels": 20},
+           "crease_min_voxels": 20, "flat_gate_deg": 0.0},
     False: {"add_threshold": 0.4, "merge_angle_deg": 10.0, "merge_offset_m": 0.1, "crease_angle_deg": 10.0,
-            "crease_min_voxels": 20},
+            "crease_min_voxels": 20, "flat_gate_deg": 0.0},
 }  # fmt: skip
 
 

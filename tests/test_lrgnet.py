@@ -242,6 +242,22 @@ def test_growth_stops_when_the_region_does_not_expand_for_two_steps() -> None:
     assert g.steps == 3 and g.not_expanding == 2 and len(g.region) == 3
 
 
+def test_the_flat_region_gate_stops_a_plane_at_its_crease() -> None:
+    """With `flat_gate_deg`, a flat region (part of the floor) may take floor voxels but not wall voxels; a region
+    that is not flat (floor and wall together) or still small may take either."""
+    vc = voxelise(small_room(), 0.1)
+    normal_z = np.abs(vc.features[:, 11])
+    floor = np.flatnonzero((vc.points[:, 2] < 0.1) & (normal_z > 0.95) & (vc.points[:, 0] > 0.2))
+    wall = np.flatnonzero((vc.points[:, 1] < 0.1) & (normal_z < 0.05) & (vc.points[:, 2] > 0.3))
+    assert len(floor) > 40 and len(wall) > 20
+    floor, wall = np.random.default_rng(0).permutation(floor), np.random.default_rng(1).permutation(wall)
+    grower = Grower(vc, LRGNet().eval(), LRGNetConfig(flat_gate_deg=20))
+    region, candidates = floor[:30], np.concatenate([floor[30:40], wall[:10]])
+    assert np.array_equal(grower.within_plane(region, candidates), np.r_[np.ones(10, bool), np.zeros(10, bool)])
+    assert grower.within_plane(np.concatenate([floor[:20], wall[10:20]]), candidates).all()
+    assert grower.within_plane(floor[:5], candidates).all()
+
+
 def test_small_segments_take_the_label_of_their_nearest_neighbour() -> None:
     cloud = apart_boxes()
     cfg = LRGNetConfig(min_segment_points=10, crease_angle_deg=0)  # growth and clean-up alone, no crease split

@@ -18,11 +18,15 @@ import torch
 
 from aftershock.models.lrgnet import LRGNet
 from aftershock.pipeline.config import LRGNetConfig
-from aftershock.pipeline.refine.features import VoxelCloud, region_centre, step_features
+from aftershock.pipeline.refine.features import NORMAL, VoxelCloud, region_centre, step_features
 
 CHUNK: Final = 8192  # candidates per head evaluation
 NOT_EXPANDING_STOP: Final = 2
 _EPS: Final = 1e-7
+# The flat-region gate (`lrgnet.flat_gate_deg`): a region of at least this many voxels whose smallest eigenvalue is
+# under this share of the sum is a plane (the crease split's test, pipeline.refine.merge)
+FLAT_GATE_MIN_VOXELS: Final = 10
+FLAT_GATE_FLATNESS: Final = 0.01
 
 
 def seed_order(vc: VoxelCloud, min_neighbours: int) -> np.ndarray:
@@ -120,6 +124,8 @@ class Grower:
             add = self.rng.random(len(p_add)) < p_add
         else:
             rm, add = p_rm > self.cfg.remove_threshold, p_add > self.cfg.add_threshold
+        if self.cfg.flat_gate_deg:
+            add &= self.within_plane(region, candidates)
         loglik = state.loglik + float(
             np.log(np.where(rm, p_rm, 1 - p_rm) + _EPS).sum() + np.log(np.where(add, p_add, 1 - p_add) + _EPS).sum()
         )
@@ -131,6 +137,20 @@ class Grower:
         not_expanding = state.not_expanding + 1 if len(new_region) <= len(region) else 0
         done = not add.any() or not_expanding >= NOT_EXPANDING_STOP or state.steps + 1 >= self.cfg.max_steps
         return Growth(new_region, loglik, state.steps + 1, done, not_expanding, history)
+
+    def within_plane(self, region: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """Which candidates a region may take by the flat-region gate: while the region is a plane, only voxels
+        whose normals lie within `flat_gate_deg` of its normal (a wall stops at the crease to the ceiling, where
+        without colour the network alone does not); everything while it is small or not flat (a chair)."""
+        ok = np.ones(len(candidates), bool)
+        if len(region) < FLAT_GATE_MIN_VOXELS:
+            return ok
+        pts = self.vc.points[region]
+        values, vectors = np.linalg.eigh(np.cov(pts - pts.mean(axis=0), rowvar=False))
+        if values[0] >= FLAT_GATE_FLATNESS * max(float(values.sum()), 1e-12):
+            return ok
+        cos = np.abs(self.vc.features[candidates, NORMAL] @ vectors[:, 0].astype(np.float32))
+        return cos >= np.cos(np.radians(self.cfg.flat_gate_deg))
 
     # --- one region -------------------------------------------------------------------------------------
     def score(self, g: Growth) -> float:
