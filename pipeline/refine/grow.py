@@ -19,14 +19,14 @@ import torch
 from aftershock.models.lrgnet import LRGNet
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.refine.features import NORMAL, VoxelCloud, region_centre, step_features
+from aftershock.pipeline.refine.merge import MAX_FLATNESS
 
 CHUNK: Final = 8192  # candidates per head evaluation
 NOT_EXPANDING_STOP: Final = 2
 _EPS: Final = 1e-7
-# The flat-region gate (`lrgnet.flat_gate_deg`): a region of at least this many voxels whose smallest eigenvalue is
-# under this share of the sum is a plane (the crease split's test, pipeline.refine.merge)
+# The flat-region gate (`lrgnet.flat_gate_deg`) judges a region of at least this many voxels (fewer say little about
+# its shape) by the crease split's test: smallest eigenvalue / sum under MAX_FLATNESS is a plane
 FLAT_GATE_MIN_VOXELS: Final = 10
-FLAT_GATE_FLATNESS: Final = 0.01
 
 
 def seed_order(vc: VoxelCloud, min_neighbours: int) -> np.ndarray:
@@ -147,7 +147,7 @@ class Grower:
             return ok
         pts = self.vc.points[region]
         values, vectors = np.linalg.eigh(np.cov(pts - pts.mean(axis=0), rowvar=False))
-        if values[0] >= FLAT_GATE_FLATNESS * max(float(values.sum()), 1e-12):
+        if values[0] >= MAX_FLATNESS * max(float(values.sum()), 1e-12):
             return ok
         cos = np.abs(self.vc.features[candidates, NORMAL] @ vectors[:, 0].astype(np.float32))
         return cos >= np.cos(np.radians(self.cfg.flat_gate_deg))
