@@ -208,11 +208,11 @@ def test_affinity_loss_by_hand() -> None:
     same = (LINK_POSITIVE - np.cos(np.radians(30))) ** 2  # points 0 and 1
     # points 0-2 (cos 10 deg) and 1-2 (cos 20 deg); point 3 is far, point 4 is of no instance
     apart = np.mean([max(np.cos(np.radians(a)) - LINK_NEGATIVE, 0) ** 2 for a in (10, 20)])
-    assert float(loss) == pytest.approx(same + apart, rel=1e-5)
+    assert loss.detach().item() == pytest.approx(same + apart, rel=1e-5)
     loss.backward()
     assert emb.grad is not None and float(emb.grad[3].abs().sum()) == 0.0 and float(emb.grad[4].abs().sum()) == 0.0
     lone = affinity_loss(emb, labels, positions * 100)  # no pairs in reach: no loss, still differentiable
-    assert float(lone) == 0.0 and lone.requires_grad
+    assert lone.detach().item() == 0.0 and lone.requires_grad
 
 
 @pytest.mark.parametrize("class_weights", [None, [1.0, 3.0, 0.5]])
