@@ -391,6 +391,12 @@ def test_refine_command_json(tmp_path: Path, weights_file: Path, capsys: pytest.
     assert out.is_file()
     assert main([*args, "--no-baselines", "--out", str(out)]) == 2  # exists without --force
     assert "already exists" in capsys.readouterr().err
+    mono = tiny_room()
+    mono.colors = None  # a cloud without colour is grown, and reported, with the colour-free settings
+    main(["refine", str(write_cloud(tmp_path / "mono.ply", mono)), "--json", "--weights", str(weights_file)])
+    mono_report = json.loads(capsys.readouterr().out)
+    assert report["colour"] is True and report["settings"] == LRGNET_MODE_DEFAULTS[True]
+    assert mono_report["colour"] is False and mono_report["settings"] == LRGNET_MODE_DEFAULTS[False]
 
 
 def test_refine_command_bad_input(tmp_path: Path, weights_file: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -17,7 +17,7 @@ import torch
 
 from aftershock.models.lrgnet import LRGNet, load_weights
 from aftershock.models.weights_file import WEIGHTS_DIR
-from aftershock.pipeline.config import LRGNetConfig
+from aftershock.pipeline.config import LRGNET_MODE_DEFAULTS, LRGNetConfig
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
 from aftershock.pipeline.refine.features import NUM_FEATURES, VoxelCloud, voxelise
@@ -40,6 +40,8 @@ class RefineResult:
     segments: int = 0
     voxels: int = 0
     seconds: float = 0.0
+    colour: bool = True  # the cloud had colour, so it was grown with that mode's settings
+    settings: dict[str, float] = field(default_factory=dict)  # the mode-dependent settings it was grown with
 
 
 def weight_settings(cfg: LRGNetConfig) -> dict[str, Any]:
@@ -106,6 +108,8 @@ def refine_cloud(
         segments=len(np.unique(labels)),
         voxels=len(vc),
         seconds=time.perf_counter() - t0,
+        colour=vc.colour,
+        settings=cfg.model_dump(include=set(LRGNET_MODE_DEFAULTS[vc.colour])),
     )
 
 
@@ -122,6 +126,8 @@ def baseline_cloud(cloud: LabelledCloud, name: str, cfg: LRGNetConfig, vc: Voxel
         segments=len(np.unique(labels)),
         voxels=len(vc),
         seconds=time.perf_counter() - t0,
+        colour=vc.colour,
+        settings=cfg.model_dump(include=set(LRGNET_MODE_DEFAULTS[vc.colour])),
     )
 
 
