@@ -206,6 +206,15 @@ def shown_map(vmap: VoxelMap, clusterer: InstanceClusterer) -> LabelledCloud:
     return cloud
 
 
+def final_cloud(vmap: VoxelMap) -> LabelledCloud:
+    """The map at the end of a run; without colour when no scan had any (not the grey the map stores for such
+    points): LRGNet and the damage assessment then take their colour-free settings, and exports say so."""
+    cloud = vmap.to_cloud()
+    if not vmap.has_colour:
+        cloud.colors = None
+    return cloud
+
+
 def consolidate(
     vmap: VoxelMap,
     clusterer: InstanceClusterer,
@@ -331,14 +340,11 @@ def _run(
                     error = error or exc
         if on_final_map is not None and not summary.interrupted and len(vmap):
             try:
-                final_map = vmap.to_cloud()
-                if not vmap.has_colour:  # a log without colour: the on-demand stages see none, not the map's grey
-                    final_map.colors = None
-                on_final_map(final_map, sinks)
+                on_final_map(final_cloud(vmap), sinks)
             except (Exception, KeyboardInterrupt) as exc:  # the run's own outputs are still finished below
                 error = exc
         with _no_interrupts():
-            final = vmap.to_cloud()
+            final = final_cloud(vmap)
             _fill_summary(summary, vmap, final, timings, perf_counter() - t_start)
             summary.skipped_messages = len(info.report.skipped)
             summary.damaged_log = info.report.damage is not None

@@ -53,7 +53,12 @@ def test_exports_read_back(velodyne_frames: list[Frame], tmp_path: Path) -> None
     assert np.allclose(cloud.points, expected.points, atol=1e-4)
     assert np.array_equal(cloud.class_ids, expected.class_ids)
     assert np.array_equal(cloud.instance_ids, expected.instance_ids)
-    assert np.array_equal(cloud.colors, class_colors(expected.class_ids))
+    # The log has no colour: other tools see the classes' colours, and our reader no colour (they stand in)
+    from plyfile import PlyData
+
+    v = PlyData.read(str(folder / MAP_FILE))["vertex"].data
+    assert np.array_equal(np.stack([v["red"], v["green"], v["blue"]], axis=1), class_colors(expected.class_ids))
+    assert cloud.colors is None
 
     tum = np.loadtxt(folder / TUM_FILE, dtype=np.float64)
     assert tum.shape == (len(velodyne_frames), 8)
@@ -113,3 +118,19 @@ def test_unwritable_places_fail_at_construction(tmp_path: Path) -> None:
     fresh = tmp_path / "fresh"
     FileExportSink(fresh).close()  # checked, never begun
     assert list(fresh.iterdir()) == []
+
+
+def test_a_cloud_without_colour_reads_back_without_colour(tmp_path: Path) -> None:
+    """The PLY format carries red, green, blue always: grey (or colour made up by the caller) stands in, the header
+    says so, and the cloud reads back without colour; a PLY with real colour keeps it."""
+    from aftershock.pipeline.cloud_io import STAND_IN_COLOUR_COMMENT, read_cloud, write_cloud
+    from aftershock.pipeline.types import LabelledCloud
+
+    pts = np.random.default_rng(0).random((50, 3))
+    grey = write_cloud(tmp_path / "grey.ply", LabelledCloud(pts))
+    assert STAND_IN_COLOUR_COMMENT.encode() in grey.read_bytes()[:1024]
+    assert read_cloud(grey).colors is None
+    rgb = np.full((50, 3), 90, np.uint8)
+    assert np.array_equal(read_cloud(write_cloud(tmp_path / "rgb.ply", LabelledCloud(pts, rgb))).colors, rgb)
+    made_up = write_cloud(tmp_path / "classes.ply", LabelledCloud(pts, rgb), stand_in_colour=True)
+    assert read_cloud(made_up).colors is None
