@@ -127,7 +127,6 @@ def baseline_cloud(cloud: LabelledCloud, name: str, cfg: LRGNetConfig, vc: Voxel
         voxels=len(vc),
         seconds=time.perf_counter() - t0,
         colour=vc.colour,
-        settings=cfg.model_dump(include=set(LRGNET_MODE_DEFAULTS[vc.colour])),
     )
 
 
