@@ -81,10 +81,10 @@ def refine_cloud(
     except ValueError:
         raise InputError(f"unknown search {cfg.search!r} (greedy, restart or beam)") from None
     net = net or load_network(cfg)
-    cfg = cfg.for_colour(cloud.colors is not None)  # growth and consolidation settings of the cloud's mode
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
+    cfg = cfg.for_colour(vc.colour)  # growth and consolidation settings of the cloud's mode, as the Grower's
     vc.features = vc.features[:, : net.in_features]  # weights of an older layout read its first columns
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # thousands of small products: extra threads only add overhead (measured 20x slower)
