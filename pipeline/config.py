@@ -269,6 +269,9 @@ class CrackConfig(_Section):
     # recessed in their scans); depth against the plane of the 3 x 3 x 3 block of depth_cell_m voxels
     depth_sigmas: NonNegative = 0.0
     depth_cell_m: Positive = 0.02
+    # a reported crack changes the surface's hue by at least min_chroma_contrast percent of chromaticity (its core
+    # against the sound ring around it; 0 = no test): shade and most dirt change only the brightness (damage/tint)
+    min_chroma_contrast: NonNegative = 0.0
     # a reported crack is narrow: at least min_area_elongation times longer than its mean width (its points' area
     # over its length; 0 = no test) and holding at most max_share of the element's points (1 = no test): stains and
     # shaded patches or faces are broad. Off: calibrated on simulated elements (0.3, 6) the test drops the real

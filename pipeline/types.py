@@ -179,6 +179,7 @@ class Crack:
     rect_width_m: float = float("nan")  # short side of the minimum-area rectangle (the whole group's extent)
     area_width_m: float = float("nan")  # mean width: its points' area (points x spacing^2) over its length
     depth_contrast: float = float("nan")  # how far its deepest points lie behind the surface around, in noise units
+    chroma_contrast: float = float("nan")  # how far its hue lies from the surface around, % of chromaticity
 
 
 @dataclass(slots=True)

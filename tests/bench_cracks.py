@@ -238,6 +238,9 @@ WEIGHTS: Final = {
 # candidates: tried, the narrowness test cost slab2's left-out F1 (0.71 -> 0.27; README), so the default list
 # leaves both out
 NARROW: Final = os.environ.get("BENCH_NARROW", "") == "1"
+# `BENCH_TINT=1` adds the hue test (`min_chroma_contrast`, damage/tint.py) to the candidates, its limit calibrated
+# as the depth limit is (README: the real elements' false candidates are tinted as much as their cracks)
+TINT: Final = os.environ.get("BENCH_TINT", "") == "1"
 SIM_KINDS: Final = ("column", "wall", "slab", "beam")
 INTACT_MAX: Final = 0.01  # at most 1 % of an intact element's points flagged
 CALIBRATION_SEEDS: Final = (101, 102, 103)  # elements the depth limit and the narrowness test are calibrated on
@@ -246,6 +249,7 @@ CALIBRATION_SEEDS: Final = (101, 102, 103)  # elements the depth limit and the n
 MERIT_INTACT_SEEDS: Final = tuple(int(x) for x in os.environ.get("BENCH_MERIT_SEEDS", "100").split(","))
 TEST_SEEDS: Final = tuple(range(110, 115))  # intact elements scored once, with the chosen default only
 DEPTH_GRID: Final = tuple(np.round(np.arange(1.0, 8.01, 0.25), 2))
+TINT_GRID: Final = tuple(np.round(np.arange(0.1, 5.01, 0.1), 2))  # min_chroma_contrast candidates, % chromaticity
 SHARE_GRID: Final = (1.0, 0.5, 0.3, 0.2, 0.15, 0.1)  # max_share candidates, loosest first
 ELONGATION_GRID: Final = (0.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0)  # min_area_elongation candidates, loosest first
 MAX_F1_LOSS: Final = 0.01  # the narrowness test may cost the simulated cracked calibration elements this much F1
@@ -270,6 +274,22 @@ def _flagged_at(result: CrackResult, limit: float) -> float:
     """Share of the points that would be flagged with the depth limit `limit` (from a run without it)."""
     kept = sum(c.num_points for c in result.cracks if c.depth_contrast >= limit)
     return kept / len(result.cloud)
+
+
+def _tint_flagged_at(result: CrackResult, limit: float) -> float:
+    """Share of the points that would be flagged with the hue limit `limit` (from a run without it; cracks whose
+    hue cannot be judged stay)."""
+    kept = sum(c.num_points for c in result.cracks if not c.chroma_contrast < limit)
+    return kept / len(result.cloud)
+
+
+def _calibrate_tint(intact: list[CrackResult]) -> float:
+    """The smallest hue limit on `TINT_GRID` at which no simulated intact calibration element has more than
+    `INTACT_MAX` of its points flagged, or the grid's end."""
+    for limit in TINT_GRID:
+        if max(_tint_flagged_at(r, limit) for r in intact) <= INTACT_MAX:
+            return float(limit)
+    return float(TINT_GRID[-1])
 
 
 def _calibrate_depth(cfg: CrackConfig, intact: list[CrackResult]) -> float:
@@ -399,7 +419,7 @@ def test_leave_one_object_out(
     sims = [f"{k}-cracked" for k in SIM_KINDS]
     intact = [f"{k}-intact-{seed}" for k in SIM_KINDS for seed in MERIT_INTACT_SEEDS]
     settings: dict[str, dict[str, object]] = {}
-    off = {"max_share": 1.0, "min_area_elongation": 0.0}
+    off = {"max_share": 1.0, "min_area_elongation": 0.0, "min_chroma_contrast": 0.0}
     for rule, over in RULES.items():
         for wname, weights in WEIGHTS.items():
             base = {**over, "edge_spacings": 0.0, "cracks_only": True, "weights": weights}
@@ -408,6 +428,14 @@ def test_leave_one_object_out(
             tag = "" if len(WEIGHTS) == 1 else f", {wname} CrackEmbed"
             settings[f"{rule}, no depth test{tag}"] = {**base, "depth_sigmas": 0.0, **off}
             settings[f"{rule}, depth >= {limit:g} sigma{tag}"] = {**base, "depth_sigmas": limit, **off}
+            if TINT:
+                hue = _calibrate_tint(intact_runs)
+                settings[f"{rule}, no depth test, hue >= {hue:g} %{tag}"] = {
+                    **base,
+                    "depth_sigmas": 0.0,
+                    "min_chroma_contrast": hue,
+                    **off,
+                }
             if not NARROW:
                 continue
             cracked_runs = [find_cracks(c, CrackConfig(**base), m) for c, m in calibration_cracked]

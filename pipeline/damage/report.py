@@ -30,6 +30,7 @@ from aftershock.pipeline.damage.drift import DriftResult, measure_drift
 from aftershock.pipeline.damage.features import FeatureSet, compute_features, parse_features
 from aftershock.pipeline.damage.measure import Scores, fit_plane, keep_narrow, measure_cracks, score, supported
 from aftershock.pipeline.damage.recess import depth_z, keep_recessed
+from aftershock.pipeline.damage.tint import keep_tinted, measure_tint
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import point_spacing, voxel_downsample
 from aftershock.pipeline.types import Crack, LabelledCloud, Story
@@ -150,6 +151,7 @@ def crack_json(c: Crack) -> dict[str, Any]:
         "rectangle_width_m": _round(c.rect_width_m),
         "area_width_m": _round(c.area_width_m),
         "depth_contrast": _round(c.depth_contrast),
+        "chroma_contrast": _round(c.chroma_contrast),
         "points": c.num_points,
         "axis": [round(float(v), 4) for v in c.axis],
         "normal": [round(float(v), 4) for v in c.normal],
@@ -262,7 +264,9 @@ def find_cracks(
         part.points, mask, link, cfg.min_crack_points, cfg.severe_width_m, spacing, cfg.min_elongation
     )
     grouped = ids > 0
+    measure_tint(cracks, part.points, part.colors, ids, ~mask)
     cracks, ids = keep_recessed(cracks, ids, depth_z(part.points, mask, cfg.depth_cell_m), cfg.depth_sigmas)
+    cracks, ids = keep_tinted(cracks, ids, cfg.min_chroma_contrast)
     cracks, ids = keep_narrow(cracks, ids, len(part), cfg.max_share, cfg.min_area_elongation)
     mask &= (ids > 0) | ~grouped  # the points of flat or broad candidates (stains, streaks, shade) are no crack either
     if cfg.cracks_only:
