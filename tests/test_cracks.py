@@ -290,6 +290,8 @@ def test_cracks_command_on_real_elements(
     assert out["width_error_m"] <= WIDTH_ERROR_AT_MOST[name]
     assert out["resolution_m"] == (0.01 if name == "slab2" else 0.001)
     assert out["cracks"] and all({"length_m", "width_m", "position"} <= set(c) for c in out["cracks"])
+    assert all({"depth_contrast", "chroma_contrast"} <= set(c) for c in out["cracks"])
+    assert any(c["chroma_contrast"] is not None and c["chroma_contrast"] > 0 for c in out["cracks"])
     assert all(c["width_m"] <= max(c["rectangle_width_m"], out["spacing_m"]) + 1e-4 for c in out["cracks"])
     assert {"study_width_error_m", "median_width_error_m", "error_definition", "true_crack_matches"} <= set(out)
     assert out["found_true_cracks"] >= 1
@@ -461,3 +463,38 @@ def test_a_flat_streak_is_not_recessed_a_crack_and_a_corner_are_told_apart() -> 
     kept, kept_ids = keep_recessed(cracks, ids, zd, 3.0)
     assert len(kept) == 1 and kept[0].instance_id == 1 and kept[0].depth_contrast > 4
     assert (kept_ids[on_crack] == 1).all() and not kept_ids[on_streak].any()
+
+
+def test_hue_tells_a_crack_from_shade_and_a_clipped_ring_is_not_judged() -> None:
+    """A wall with three dark bands of the same brightness: a crack that also turns the surface brown (its hue
+    shifts), a shaded band and a grey stain (all channels scaled alike). Only the crack has a hue contrast;
+    with a limit the other two are dropped and the crack renumbered first. A band on a surface whose red channel
+    is clipped at 255 on most points cannot be judged (NaN) and is never dropped for it."""
+    from aftershock.pipeline.damage.tint import chroma_contrast, keep_tinted, measure_tint
+
+    rng = np.random.default_rng(0)
+    s, z = np.meshgrid(np.arange(0, 0.6, 0.002), np.arange(0, 0.5, 0.002), indexing="ij")
+    pts = np.c_[s.ravel(), np.zeros(s.size), z.ravel()] + rng.normal(0, 0.0003, (s.size, 3))
+    colors = np.array([200.0, 190.0, 170.0]) + rng.normal(0, 8, (s.size, 3))
+    bands = [np.abs(pts[:, 0] - x) <= 0.006 for x in (0.1, 0.3, 0.5)]  # shade, crack, stain
+    colors[bands[0]] *= 0.8
+    colors[bands[1]] *= np.array([0.86, 0.8, 0.7])  # as dark on average, and browner
+    colors[bands[2]] *= 0.8
+    rgb = np.clip(np.round(colors), 0, 255).astype(np.uint8)
+    mask = bands[0] | bands[1] | bands[2]
+    cracks, ids = measure_cracks(pts, mask, 0.005, 20, 0.0032, 0.002, min_elongation=3.0)
+    assert len(cracks) == 3
+    measure_tint(cracks, pts, rgb, ids, ~mask)
+    by_band = {i: cracks[ids[b][0] - 1].chroma_contrast for i, b in enumerate(bands)}
+    assert by_band[1] > 3 and by_band[0] < 0.5 and by_band[2] < 0.5
+    kept, kept_ids = keep_tinted(cracks, ids, 1.0)
+    assert len(kept) == 1 and kept[0].instance_id == 1 and (kept_ids[bands[1]] == 1).all()
+    assert not kept_ids[bands[0] | bands[2]].any()
+
+    bright = rgb.copy()
+    bright[~mask, 0] = 255  # the sound surface's red at the ceiling: its hue is not measured
+    contrast = chroma_contrast(pts, bright, ids, ~mask)
+    assert np.isnan(contrast[1:]).all()
+    cracks, ids = measure_cracks(pts, mask, 0.005, 20, 0.0032, 0.002, min_elongation=3.0)
+    measure_tint(cracks, pts, bright, ids, ~mask)
+    assert len(keep_tinted(cracks, ids, 1.0)[0]) == 3
