@@ -3,10 +3,9 @@
 An element is scanned as a terrestrial scanner sees it from one side: two faces of a column, one face
 of a wall panel, the top of a slab, the side and soffit of a beam. The surface is a jittered grid with
 scanner noise (0.2-1.5 mm), gentle unevenness, shallow pits, and what is dark but *not* a crack (so colour
-alone cannot find cracks): stains, run-off dirt streaks (long and thin, like a crack, but flat), each grey or
-with a hue of its own (damp, mud, rust, algae), shade that varies across the element and from face to face.
-Concrete is bare (grey or buff, speckled with aggregate) or painted (a smooth, even coat). Parts of the
-surface can be hidden (occlusion: no points there).
+alone cannot find cracks): stains, run-off dirt streaks (long and thin, like a crack, but flat), shade that
+varies across the element and from face to face. Concrete is bare (grey or buff, speckled with aggregate) or
+painted (a smooth, even coat). Parts of the surface can be hidden (occlusion: no points there).
 
 Cracks wander across a face, narrow towards their ends with an opening that varies along them, some branch,
 some have spalled edges (the opening widens over a short stretch, shallower and rougher: such spalls are
@@ -64,9 +63,6 @@ ELEMENTS: Final[dict[str, ElementKind]] = {
 }
 
 _CONCRETE_TONES: Final = ((236, 214, 176), (200, 196, 188), (182, 176, 166), (222, 206, 180), (170, 162, 150))
-# dirt hues as per-channel darkening (R, G, B) relative to the mean: grime, damp, mud, rust, algae
-_DIRT_HUES: Final = ((1.0, 1.0, 1.0), (0.9, 1.0, 1.1), (0.7, 1.0, 1.3), (0.4, 1.0, 1.6), (1.2, 0.7, 1.1))
-_DIRT_CHANCES: Final = (0.3, 0.2, 0.2, 0.2, 0.1)
 _PAINT_TONES: Final = ((238, 236, 228), (214, 214, 210), (232, 222, 196), (196, 208, 214), (206, 214, 196))
 
 
@@ -88,37 +84,19 @@ def _faces(kind: ElementKind) -> list[_Face]:
     return [_Face(np.array([-sx / 2, -sy / 2, sz]), ex, ey, ez, sx, sy)]
 
 
-def _blob_fields(
-    pts: np.ndarray, rng: np.random.Generator, count: int, radius: tuple[float, float]
-) -> list[np.ndarray]:
-    """`count` Gaussian bumps (peak 1, random radius) at random points, one (N,) field each."""
-    out = []
-    for _ in range(count):  # a handful of bumps per element
-        c = pts[int(rng.integers(len(pts)))]
-        r = rng.uniform(*radius)
-        out.append(np.exp(-((pts - c) ** 2).sum(1) / (r * r)).astype(np.float32))
-    return out
-
-
 def _blobs(pts: np.ndarray, rng: np.random.Generator, count: int, radius: tuple[float, float]) -> np.ndarray:
     """Sum of `count` Gaussian bumps (peak 1, random radius) at random points: (N,)."""
     out = np.zeros(len(pts), np.float32)
-    for field in _blob_fields(pts, rng, count, radius):
-        out += field
+    for _ in range(count):  # a handful of bumps per element
+        c = pts[int(rng.integers(len(pts)))]
+        r = rng.uniform(*radius)
+        out += np.exp(-((pts - c) ** 2).sum(1) / (r * r)).astype(np.float32)
     return out
 
 
-def _dirt_hue(rng: np.random.Generator) -> np.ndarray:
-    """Per-channel darkening of one stain or streak, relative to its mean (3,): grime is grey, but rust, mud,
-    damp and algae have a hue of their own (the real elements' false candidates are 2-8 % of chromaticity off
-    the surface around them, as much as their cracks)."""
-    kind = int(rng.choice(len(_DIRT_HUES), p=_DIRT_CHANCES))
-    return (1.0 + rng.uniform(0.0, 1.0) * (np.asarray(_DIRT_HUES[kind]) - 1.0)).astype(np.float32)
-
-
-def _streaks(pts: np.ndarray, faces: list[_Face], face_of: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
-    """Run-off dirt: a few long, thin, flat dark streaks down the faces (0..1 strength per point, one field each)."""
-    out = []
+def _streaks(pts: np.ndarray, faces: list[_Face], face_of: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Run-off dirt: a few long, thin, flat dark streaks down the faces (0..1 strength per point)."""
+    out = np.zeros(len(pts), np.float32)
     for _ in range(int(rng.integers(0, 4))):
         fi = int(rng.integers(len(faces)))
         f = faces[fi]
@@ -129,10 +107,8 @@ def _streaks(pts: np.ndarray, faces: list[_Face], face_of: np.ndarray, rng: np.r
         wobble = 0.01 * np.sin(uv[:, 1] * rng.uniform(5, 20))
         across = np.exp(-(((uv[:, 0] - cu - wobble) / half) ** 2))
         along = np.clip(1 - (top - uv[:, 1]) / length, 0, 1) * (uv[:, 1] <= top)
-        field = np.zeros(len(pts), np.float32)
-        field[on] = across * along
-        out.append(field)
-    return out
+        out[on] += (across * along).astype(np.float32)
+    return np.clip(out, 0, 1)
 
 
 def cracked_element(
@@ -151,7 +127,7 @@ def cracked_element(
         raise InputError(f"spacing {spacing_m} m is outside 0.5 mm .. 5 cm")
     el = ELEMENTS[kind]
     # separate streams: the same seed gives the same cracks at every spacing
-    rng_crack, rng, rng_dirt = (np.random.default_rng([int(seed), sum(map(ord, kind)), 17, s]) for s in (0, 1, 2))
+    rng_crack, rng = (np.random.default_rng([int(seed), sum(map(ord, kind)), 17, s]) for s in (0, 1))
     faces = _faces(el)
     pts_l, nrm_l, face_l = [], [], []
     for fi, f in enumerate(faces):
@@ -201,16 +177,9 @@ def cracked_element(
     shade *= (1 + rng.uniform(0, 0.25) * ((pts - pts.mean(0)) @ light) / extent).astype(np.float32)
     colors *= shade[:, None]
     intensity = (0.55 + 0.05 * rng.standard_normal(n)).astype(np.float32)
-    # stains and streaks: dark but flat, not cracks; each with a hue of its own (own stream: the same element
-    # otherwise, point for point, as before they had one)
-    stains = _blob_fields(pts, rng, int(rng.integers(2, 7)), (0.01, 0.08))
-    strength = rng.uniform(0.15, 0.35)
-    for stain in stains:
-        colors *= 1 - np.clip(stain, 0, 1)[:, None] * strength * _dirt_hue(rng_dirt)[None, :]
-    streaks = _streaks(pts, faces, face_of, rng)
-    strength = rng.uniform(0.1, 0.3)
-    for streak in streaks:
-        colors *= 1 - np.clip(streak, 0, 1)[:, None] * strength * _dirt_hue(rng_dirt)[None, :]
+    stains = _blobs(pts, rng, int(rng.integers(2, 7)), (0.01, 0.08))  # stains: dark but flat, not cracks
+    colors *= (1 - np.clip(stains, 0, 1) * rng.uniform(0.15, 0.35))[:, None]
+    colors *= (1 - _streaks(pts, faces, face_of, rng) * rng.uniform(0.1, 0.3))[:, None]
 
     mask = np.zeros(n, bool)
     concrete = np.asarray(_CONCRETE_TONES[int(rng.integers(len(_CONCRETE_TONES)))], np.float32)
