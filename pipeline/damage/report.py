@@ -205,7 +205,8 @@ def find_cracks(
     a separate mode of high scores) → scores smoothed over space → support clean-up (drops the smoothing's rim,
     and the thin ends of cracks with it) → growth: points within `cfg.grow_m` of a crack whose smoothed score is
     nearly above the threshold join it → cracks (connected, elongated groups) → each crack's depth contrast
-    (`recess`), and with `cfg.depth_sigmas` > 0 only cracks at least that recessed stay; with `cfg.cracks_only`
+    (`recess`) and hue contrast (`tint`), and with `cfg.depth_sigmas` > 0 only cracks at least that recessed
+    stay, with `cfg.min_chroma_contrast` > 0 only those whose hue differs that much; with `cfg.cracks_only`
     the crack points are those of reported cracks. Each crack's opening is measured on all of its points, as each true
     crack's is. Points with non-finite coordinates are left out (`notes` says how many). Fewer than
     `MIN_POINTS` points, or a cloud whose spacing is coarser than `cfg.max_spacing_m`, raise `TooSparseError`

@@ -3,7 +3,7 @@
 Shade (a face lit less, light falling across an element) and most dirt scale all three colour channels
 alike: they change how much light the surface returns, not its chromaticity (r, g, b over their sum). A crack
 shows other material (the concrete's inside, dust, moisture; bare concrete under paint), which shifts the hue
-as well. A candidate's chroma contrast is the distance, in percent of chromaticity, between the mean
+as well. A candidate's chroma contrast is the distance, in percent of chromaticity, between the
 chromaticity of its core (the half of its points furthest from the sound surface: its smoothed and grown rim
 lies on that surface) and that of the sound points around it (a ring `RING_M` from the candidate), each the
 chromaticity of the mean colour of the middle half of each channel's values. A channel at the sensor's ceiling
@@ -12,7 +12,8 @@ no longer scales with the light: that mean stays true while under a quarter of t
 candidate whose core or ring is clipped into its middle half, or has fewer than `_MIN_POINTS` points, cannot
 be judged and keeps a contrast of NaN (never dropped for it).
 
-Known limit: a stain with a hue of its own (rust) passes, as a crack would.
+Off by default (`cracks.min_chroma_contrast` = 0; README, round T): the real elements' stains have hues of their
+own (rust, damp) and slab2's cracks hardly any, so on them the test drops cracks and keeps stains.
 """
 
 from __future__ import annotations
