@@ -164,7 +164,10 @@ def test_validation_choice() -> None:
         for mode in VALIDATION_MODES:
             mm = {k: float(np.mean([c[k] for (_, md), c in cells.items() if md == mode])) for k in KEYS}
             line += f" | {mode} " + " ".join(f"{k} {mm[k]:.3f}" for k in ("ami", "ari", "precision", "recall"))
-        line += " | cells " + " ".join(f"{g}/{md} {c['ami']:.3f}/{c['ari']:.3f}" for (g, md), c in cells.items())
+        line += " | cells (AMI/ARI/precision/recall) " + " ".join(
+            f"{g}/{md} " + "/".join(f"{c[k]:.3f}" for k in ("ami", "ari", "precision", "recall"))
+            for (g, md), c in cells.items()
+        )
         print(line, flush=True)
 
 
