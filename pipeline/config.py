@@ -172,7 +172,7 @@ class LRGNetConfig(_Section):
     neighbours: Count = 256  # J
     delta_m: Positive = 0.1  # δ: neighbour set = unlabelled points within this distance of the region
     max_steps: Count = 200  # a floor grows by one voxel ring a step: 60 cut large floors and ceilings apart
-    min_segment_points: Count = 10
+    min_segment_points: Count = 25  # smaller segments join the nearest large one (round K, validation; was 10)
     seed_min_neighbours: NonNegativeCount = 6  # seeds: voxels with fewer occupied neighbours come after all others
     search: str = "greedy"  # greedy | restart | beam
     restarts: Count = 10
