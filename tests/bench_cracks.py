@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Final
 
@@ -26,7 +27,7 @@ from aftershock.pipeline.config import CrackConfig, DriftConfig
 from aftershock.pipeline.damage.detectors import Detector
 from aftershock.pipeline.damage.features import FeatureSet
 from aftershock.pipeline.damage.report import CrackResult, find_cracks
-from aftershock.pipeline.types import LabelledCloud
+from aftershock.pipeline.types import Crack, LabelledCloud
 from aftershock.sources.simulator.damage import CrackTruth
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
@@ -220,7 +221,7 @@ def test_unseen_simulated_elements() -> None:
 
 
 # Candidate settings for the default: every combination of the threshold rule and the depth test (off, or at
-# the limit calibrated on simulated intact elements for that rule: `_calibrate_depth`); crack points are those of
+# the limit calibrated on simulated intact elements for that rule: `_calibrate_limit`); crack points are those of
 # reported cracks. Chosen leave-one-object-out (below). Scan-edge suppression lost the previous leave-one-out
 # (it cost column2 and slab2 up to 0.2 F1) and is no longer a candidate.
 RULES: Final = {
@@ -271,36 +272,28 @@ def _far_share(points: np.ndarray, truth: np.ndarray, mask: np.ndarray, reach_m:
     return float(mask[far].mean()) if far.any() else float("nan")
 
 
-def _flagged_at(result: CrackResult, limit: float) -> float:
-    """Share of the points that would be flagged with the depth limit `limit` (from a run without it)."""
-    kept = sum(c.num_points for c in result.cracks if c.depth_contrast >= limit)
+def _flagged_at(result: CrackResult, limit: float, contrast: Callable[[Crack], float]) -> float:
+    """Share of the points that would be flagged with a limit on each crack's `contrast` (its depth or hue
+    contrast, from a run without the limit; a crack whose contrast is NaN, not judged, stays)."""
+    kept = sum(c.num_points for c in result.cracks if not contrast(c) < limit)
     return kept / len(result.cloud)
 
 
-def _tint_flagged_at(result: CrackResult, limit: float) -> float:
-    """Share of the points that would be flagged with the hue limit `limit` (from a run without it; cracks whose
-    hue cannot be judged stay)."""
-    kept = sum(c.num_points for c in result.cracks if not c.chroma_contrast < limit)
-    return kept / len(result.cloud)
-
-
-def _calibrate_tint(intact: list[CrackResult]) -> float:
-    """The smallest hue limit on `TINT_GRID` at which no simulated intact calibration element has more than
-    `INTACT_MAX` of its points flagged, or the grid's end."""
-    for limit in TINT_GRID:
-        if max(_tint_flagged_at(r, limit) for r in intact) <= INTACT_MAX:
+def _calibrate_limit(intact: list[CrackResult], grid: tuple[float, ...], contrast: Callable[[Crack], float]) -> float:
+    """The smallest limit on `grid` at which no simulated intact calibration element has more than `INTACT_MAX`
+    of its points flagged (runs without the limit: each candidate's contrast is known), or the grid's end."""
+    for limit in grid:
+        if max(_flagged_at(r, limit, contrast) for r in intact) <= INTACT_MAX:
             return float(limit)
-    return float(TINT_GRID[-1])
+    return float(grid[-1])
 
 
-def _calibrate_depth(cfg: CrackConfig, intact: list[CrackResult]) -> float:
-    """The smallest depth limit on `DEPTH_GRID` at which no simulated intact calibration element has more than
-    `INTACT_MAX` of its points flagged (runs without the limit: each candidate's depth contrast is known), or the
-    grid's end."""
-    for limit in DEPTH_GRID:
-        if max(_flagged_at(r, limit) for r in intact) <= INTACT_MAX:
-            return float(limit)
-    return float(DEPTH_GRID[-1])
+def _depth(c: Crack) -> float:
+    return c.depth_contrast
+
+
+def _hue(c: Crack) -> float:
+    return c.chroma_contrast
 
 
 def _narrow_outcome(result: CrackResult, max_share: float, min_elongation: float) -> float:
@@ -425,12 +418,12 @@ def test_leave_one_object_out(
         for wname, weights in WEIGHTS.items():
             base = {**over, "edge_spacings": 0.0, "cracks_only": True, "weights": weights}
             intact_runs = [find_cracks(c, CrackConfig(**base), m) for c, m in calibration]
-            limit = _calibrate_depth(CrackConfig(**base), intact_runs)
+            limit = _calibrate_limit(intact_runs, DEPTH_GRID, _depth)
             tag = "" if len(WEIGHTS) == 1 else f", {wname} CrackEmbed"
             settings[f"{rule}, no depth test{tag}"] = {**base, "depth_sigmas": 0.0, **off}
             settings[f"{rule}, depth >= {limit:g} sigma{tag}"] = {**base, "depth_sigmas": limit, **off}
             if TINT:
-                hue = _calibrate_tint(intact_runs)
+                hue = _calibrate_limit(intact_runs, TINT_GRID, _hue)
                 settings[f"{rule}, no depth test, hue >= {hue:g} %{tag}"] = {
                     **base,
                     **off,

@@ -31,18 +31,22 @@ SATURATED: Final = 255  # a channel at the 8-bit ceiling
 _MIN_POINTS: Final = 5  # fewer core or ring points: no contrast (NaN)
 
 
+def _by_group(values: np.ndarray, owner: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`values` (M,) sorted by owner 0..k and then by value, with each owner's start and count in that order."""
+    counts = np.bincount(owner, minlength=k + 1)
+    return values[np.lexsort((values, owner))], np.r_[0, np.cumsum(counts)[:-1]], counts
+
+
 def _group_midmeans(values: np.ndarray, owner: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-column mean of the middle half (25th to 75th percentile) of `values` (M, C) over each owner 0..k, and
     the top of that half: two (k + 1, C) arrays, NaN where an owner has no rows."""
     mean = np.full((k + 1, values.shape[1]), np.nan)
     top = np.full_like(mean, np.nan)
-    counts = np.bincount(owner, minlength=k + 1)
-    has = counts > 0
-    starts = np.r_[0, np.cumsum(counts)[:-1]][has]
-    lo = starts + counts[has] // 4
-    hi = np.maximum(starts + (3 * counts[has] + 3) // 4, lo + 1)  # at least one value
     for c in range(values.shape[1]):  # one sort per channel
-        v = values[np.lexsort((values[:, c], owner)), c]
+        v, starts, counts = _by_group(values[:, c], owner, k)
+        has = counts > 0
+        lo = starts[has] + counts[has] // 4
+        hi = np.maximum(starts[has] + (3 * counts[has] + 3) // 4, lo + 1)  # at least one value
         cum = np.r_[0.0, np.cumsum(v)]
         mean[has, c] = (cum[hi] - cum[lo]) / (hi - lo)
         top[has, c] = v[hi - 1]
@@ -65,10 +69,9 @@ def chroma_contrast(points: np.ndarray, colors: np.ndarray, ids: np.ndarray, sou
     # the core: crack points at least their crack's median distance from the sound surface
     depth, _ = cKDTree(points[sound_idx]).query(points[crack_idx], k=1, workers=-1)
     crack_ids = ids[crack_idx]
-    order = np.lexsort((depth, crack_ids))
-    counts = np.bincount(crack_ids, minlength=k + 1)
-    middle = np.r_[0, np.cumsum(counts)[:-1]] + (counts - 1) // 2
-    median = np.where(counts > 0, depth[order][np.minimum(middle, len(order) - 1)], np.inf)
+    ordered, starts, counts = _by_group(depth, crack_ids, k)
+    median = np.full(k + 1, np.inf)
+    median[counts > 0] = ordered[(starts + (counts - 1) // 2)[counts > 0]]
     core = crack_idx[depth >= median[crack_ids]]
     # the ring: sound points RING_M from their nearest crack point
     dist, nearest = cKDTree(points[crack_idx]).query(points[sound_idx], k=1, distance_upper_bound=RING_M[1], workers=-1)
