@@ -172,12 +172,12 @@ def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
     )
 
 
-def transfer_uris(seeds: Iterable[int], scans: int) -> list[str]:
+def transfer_uris(seeds: Iterable[int], scans: int, generators: tuple[str, ...] = split.TRAIN_GENERATORS) -> list[str]:
     """The randomised training missions: every training generator and seed, a sensor and a robot drawn per
     mission, the robot's mount, motion, the palette and the sensor's conditions drawn by the simulator."""
     out = []
     for s in seeds:
-        for g in split.TRAIN_GENERATORS:
+        for g in generators:
             rng = np.random.default_rng([s, sum(map(ord, g)), 12])
             sensor = TRANSFER_SENSORS[int(rng.integers(len(TRANSFER_SENSORS)))]
             robot = TRANSFER_ROBOTS[int(rng.integers(len(TRANSFER_ROBOTS)))]
@@ -631,6 +631,7 @@ def train(
     epochs: int | None = None,
     force: bool = False,
     kinds: tuple[str, ...] = KINDS,
+    generators: tuple[str, ...] = split.TRAIN_GENERATORS,
 ) -> dict[str, Any]:
     """Stage the training missions, train the networks, write their weights.
 
@@ -638,7 +639,7 @@ def train(
     colour dropped per point. MCPNet for logs without colour (#12): randomised missions of the training
     generators (`transfer_uris`), see TRANSFER_*. `out` is the MCPNet weights file (default
     models/weights/mcpnet.pt); the others go beside it. `kinds` limits which networks are trained; `epochs`
-    overrides every network's epochs.
+    overrides every network's epochs; `generators` the scene generators of the colour-free network's missions.
     """
     torch.set_num_threads(1)  # on a shared 2-core machine a second intra-op thread mostly waits
     out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet.pt"
@@ -693,11 +694,11 @@ def train(
     if "mcpnet-nocolor" in kinds:
         t0 = time.perf_counter()
         cfg = mcpnet_config()
-        uris = transfer_uris(TRAIN_SEEDS, TRANSFER_SCANS)
+        uris = transfer_uris(TRAIN_SEEDS, TRANSFER_SCANS, generators)
         pool = Pool(stage_uris(uris, cfg))
         recipe = {
             "train_seeds": list(TRAIN_SEEDS),
-            "generators": list(split.TRAIN_GENERATORS),
+            "generators": list(generators),
             "held_out_generator": split.HELDOUT_GENERATOR,
             "missions": uris,
             "scans_per_mission": TRANSFER_SCANS,
