@@ -24,7 +24,7 @@ from aftershock.sources.simulator.trajectory import free_space
 CLI = Path(sys.executable).with_name("aftershock")
 
 
-@pytest.mark.parametrize("name", ["hall", "wing"])
+@pytest.mark.parametrize("name", ["hall", "wing", "flats"])
 def test_independent_generators_are_deterministic_walkable_and_labelled(name: str) -> None:
     a, b = generate(name, 4), generate(name, 4)
     assert np.array_equal(a.mesh.vertices, b.mesh.vertices) and np.array_equal(a.mesh.colors, b.mesh.colors)
@@ -184,7 +184,7 @@ def test_unknown_names_are_one_line_with_the_choices(tmp_path: Path) -> None:
     assert not (tmp_path / "x.mcap").exists()
     # the same one-line errors (the CLI builds its spec through these checks)
     for uri, words in (
-        ("sim://moon", "unknown scene generator 'moon' (known: office, disaster, hall, wing)"),
+        ("sim://moon", "unknown scene generator 'moon' (known: office, disaster, hall, wing, flats)"),
         ("sim://wing?sensor=hdl64", "unknown sensor 'hdl64' (known: vlp16, vlp16-20hz, dense, vlp32c, os0-32"),
         ("sim://wing?palette=pink", "unknown palette 'pink' (known: natural, random, grey, swap)"),
     ):
@@ -196,4 +196,59 @@ def test_sim_uri_refuses_bad_values() -> None:
     for bad in ("sim://wing?color=maybe", "sim://wing?height=3", "sim://wing?conditions=foggy", "sim://wing?turn=0"):
         with pytest.raises(InputError):
             parse_sim_uri(bad)
-    assert set(GENERATORS) == {"office", "disaster", "hall", "wing"}
+    assert set(GENERATORS) == {"office", "disaster", "hall", "wing", "flats"}
+
+
+def test_flats_is_deterministic_furnished_damaged_by_seed_and_every_room_is_reached() -> None:
+    """The fourth training generator: same seed, same mesh; all the classes; some seeds damaged, some not; every
+    room in the robot's free space and nearly all of them on a wheeled robot's tour."""
+    from aftershock.sources.simulator.generators.flats import build
+
+    a, b = build(6), build(6)
+    assert np.array_equal(a.mesh.vertices, b.mesh.vertices) and np.array_equal(a.mesh.colors, b.mesh.colors)
+    assert np.array_equal(a.mesh.class_ids, b.mesh.class_ids) and a.rooms == b.rooms
+    scenes = [generate("flats", s) for s in range(6)]
+    classes = {SemanticClass(c) for s in scenes for c in s.truth.instance_classes.values()}
+    assert set(SemanticClass) <= classes, set(SemanticClass) - classes
+    damaged = [SemanticClass.DEBRIS in set(s.truth.instance_classes.values()) for s in scenes]
+    assert any(damaged) and not all(damaged)
+    # the three corridor schemes: a gallery on the south facade, a dogleg (two corridors), a double-loaded one
+    corridors = [[r for r in s.rooms if r.kind == "corridor"] for s in scenes]
+    assert {len(c) for c in corridors} == {1, 2} and any(c[0].y0 < 0.2 for c in corridors)
+    assert any(len(c) == 1 and c[0].y0 > 3.0 for c in corridors)
+    # the stair climbs through a hole in the ceiling
+    m = scenes[0].mesh
+    stair = m.class_ids == SemanticClass.CLUTTER
+    assert m.vertices[m.triangles[stair]][:, :, 2].max() > scenes[0].ceiling_z[0] + 0.05
+    mission = make_mission(parse_sim_uri("sim://flats?seed=6&scans=3&robot=wheeled&height=1&turn=45"))
+    grid, xy = mission.trajectory.grid, mission.trajectory.xy
+    rooms = mission.scene.rooms
+    assert len(rooms) >= 15 and rooms[0].kind == "corridor"
+    assert all(grid.best_cell_in(r.x0, r.y0, r.x1, r.y1) is not None for r in rooms), "a room cut off"
+    entered = [((xy[:, 0] > r.x0) & (xy[:, 0] < r.x1) & (xy[:, 1] > r.y0) & (xy[:, 1] < r.y1)).any() for r in rooms]
+    assert np.mean(entered) >= 0.85
+    scan = mission.scan(1)
+    assert len(scan) > 10_000 and (scan.class_ids != UNLABELLED).all()
+
+
+def test_flats_is_built_from_primitives_only() -> None:
+    """`flats` shares no layout, furniture, door, window or damage code with the other generators: it imports
+    meshes and scene, and from parts only the wall, slab, opening, footprint and finish primitives."""
+    import ast
+
+    import aftershock.sources.simulator.generators.flats as flats
+    import aftershock.sources.simulator.generators.flats_things as flats_things
+
+    banned = {"things", "wreck", "wing", "hall", "furniture", "building", "layout", "contents", "damage"}
+    allowed_parts = {"wall", "slab", "Opening", "Footprints", "finish"}
+    for module in (flats, flats_things):
+        tree = ast.parse(Path(str(module.__file__)).read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                last = (node.module or "").split(".")[-1]
+                names = {a.name for a in node.names}
+                assert last not in banned and not names & banned, (module.__name__, node.module, names)
+                if last == "parts":
+                    assert names <= allowed_parts, names
+            elif isinstance(node, ast.Import):
+                assert not {a.name.split(".")[-1] for a in node.names} & banned

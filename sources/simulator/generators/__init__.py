@@ -3,7 +3,9 @@
     scene = generate("wing", seed=3, palette="random")
 
 `office` and `disaster` are the families (families.py); `hall` (open hall on a column grid, mezzanine,
-racks) and `wing` (a turning corridor with doors along it, L-shaped rooms round closets and washrooms)
+racks), `wing` (a turning corridor with doors along it, L-shaped rooms round closets and washrooms) and
+`flats` (a floor of flats, hotel rooms or a dormitory: stair core and lift lobby, a double-loaded corridor,
+an access gallery or a dogleg, apartments of hall, passage, bathroom, kitchen, living room and bedrooms)
 share none of their layout, furniture or damage code. `palette` repaints any of them (looks.py).
 """
 
@@ -37,11 +39,18 @@ def _wing(seed: int) -> Scene:
     return build(seed)
 
 
+def _flats(seed: int) -> Scene:
+    from aftershock.sources.simulator.generators.flats import build
+
+    return build(seed)
+
+
 GENERATORS: Final[dict[str, Callable[[int], Scene]]] = {
     "office": _family("office"),
     "disaster": _family("disaster"),
     "hall": _hall,
     "wing": _wing,
+    "flats": _flats,
 }
 
 
