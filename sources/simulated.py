@@ -5,7 +5,7 @@
     sim://wing?seed=7&sensor=os1-64&robot=wheeled&height=0.4&color=0&conditions=random
     sim://hall?seed=2&randomize=1
 
-The scene generator is the URI's host (default `disaster`; office, disaster, hall, wing); query keys:
+The scene generator is the URI's host (default `disaster`; office, disaster, hall, wing, flats); query keys:
 seed, sensor, scans, duration (s), story, speed (m/s), spacing (m: a scan every so far instead of at the
 sensor rate), robot (legged, wheeled, tracked), height (m, the LiDAR mount), tilt (deg, pitched down),
 turn (deg/s, fastest turn), sway (deg, body roll), palette (natural, random, grey, swap), color (0: a

@@ -23,7 +23,7 @@ def register(app: typer.Typer) -> None:
         out: Path | None = typer.Option(None, "--out", "-o", help="MCAP file to write the mission to."),
         seed: int = typer.Option(0, "--seed", help="Building and mission seed: the same seed, the same bytes."),
         scene: str = typer.Option(
-            "disaster", "--scene", help="Scene generator: office, disaster (the families), hall or wing."
+            "disaster", "--scene", help="Scene generator: office, disaster (the families), hall, wing or flats."
         ),
         sensor: str = typer.Option(
             "vlp16",
