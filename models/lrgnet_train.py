@@ -424,7 +424,11 @@ def validation_rooms(generator: str) -> list[LabelledCloud]:
 
 
 def generator_samples(
-    generator: str, cfg: LRGNetConfig, seed: int, colour_free_share: float = COLOUR_FREE_SHARE
+    generator: str,
+    cfg: LRGNetConfig,
+    seed: int,
+    colour_free_share: float = COLOUR_FREE_SHARE,
+    limit: int = GENERATOR_SAMPLES,
 ) -> tuple[Samples, Samples, int]:
     """Training samples of one generator (rooms varied by `room_variant`, at most GENERATOR_SAMPLES) and
     validation samples (VAL_LOSS_ROOMS validation rooms, half without colour), and the number of training rooms."""
@@ -432,7 +436,7 @@ def generator_samples(
     train_rooms = training_rooms(generator)
     train_set = make_samples([room_variant(r, rng, colour_free_share) for r in train_rooms], cfg, rng)
     val = [without_colour(r) if i % 2 else r for i, r in enumerate(validation_rooms(generator)[:VAL_LOSS_ROOMS])]
-    return _cap(train_set, GENERATOR_SAMPLES, rng), make_samples(val, cfg, rng), len(train_rooms)
+    return _cap(train_set, limit, rng), make_samples(val, cfg, rng), len(train_rooms)
 
 
 def checkpoint_path(seed: int, epoch: int, name: str = "lrgnet") -> Path:
@@ -446,6 +450,7 @@ def train(
     force: bool = False,
     colour_free_share: float = COLOUR_FREE_SHARE,
     generators: tuple[str, ...] = GENERATORS,
+    samples_per_generator: int = GENERATOR_SAMPLES,
 ) -> dict:
     """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt), a
     share of them without colour (1 = a network for clouds without colour); the same seed gives the same file."""
@@ -457,7 +462,7 @@ def train(
     n_epochs = epochs if epochs is not None else EPOCHS
     cfg = LRGNetConfig()
     t0 = time.perf_counter()
-    data = [generator_samples(g, cfg, seed, colour_free_share) for g in generators]
+    data = [generator_samples(g, cfg, seed, colour_free_share, samples_per_generator) for g in generators]
     train_set, val_set = data[0][0], data[0][1]
     for tr, va, _ in data[1:]:
         train_set, val_set = merge(train_set, tr), merge(val_set, va)
@@ -472,6 +477,7 @@ def train(
         "train_buildings": {g: list(TRAIN_SEEDS[g]) for g in generators},
         "validation_buildings": {g: list(VALIDATION_SEEDS[g]) for g in generators},
         "train_rooms": sum(d[2] for d in data),
+        "samples_per_generator": samples_per_generator,
         "samples": len(train_set),
         "val_samples": len(val_set),
         "data_seconds": round(data_seconds, 1),
