@@ -1,5 +1,6 @@
 """Building blocks of the independent scene generators (`hall`, `wing`): slabs, walls cut by openings, doors,
-glazing and mirrors, a footprint book-keeper for furniture, and the finished `Scene` with its truth.
+glazing and mirrors, a footprint book-keeper for furniture, and the finished `Scene` with its truth. `flats`
+takes only the walls, slabs, openings, footprints and `finish` from here (its doors and glazing are its own).
 
 None of this goes through the families' plan (`layout.py`, `building.py`): the generators draw their
 shapes themselves, so that a network trained on one cannot learn the other's habits.
