@@ -181,7 +181,8 @@ def test_validation_choice(tmp_path: Path) -> None:
     colors = (True, False) if os.environ.get("TRANSFER_VALIDATION_COLOR", "1") != "0" else (False,)
     # TRANSFER_VALIDATION_GENERATORS: training generators whose validation missions judge (never the held-out one)
     gens = tuple(os.environ.get("TRANSFER_VALIDATION_GENERATORS", ",".join(TRAIN_GENERATORS)).split(","))
-    assert HELDOUT_GENERATOR not in gens, "the held-out generator never chooses"
+    if HELDOUT_GENERATOR in gens:
+        raise ValueError(f"TRANSFER_VALIDATION_GENERATORS: {HELDOUT_GENERATOR} is the held-out generator")
     weights = {"shipped": [f"label.weights={shipped}"] if shipped else []}
     weights |= {Path(c).stem: [f"label.weights={c}"] for c in candidates}
     rows: dict[str, dict[tuple[str, bool], dict[str, Any]]] = {name: {} for name in weights}
