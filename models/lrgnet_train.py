@@ -430,7 +430,7 @@ def generator_samples(
     colour_free_share: float = COLOUR_FREE_SHARE,
     limit: int = GENERATOR_SAMPLES,
 ) -> tuple[Samples, Samples, int]:
-    """Training samples of one generator (rooms varied by `room_variant`, at most GENERATOR_SAMPLES) and
+    """Training samples of one generator (rooms varied by `room_variant`, at most `limit`) and
     validation samples (VAL_LOSS_ROOMS validation rooms, half without colour), and the number of training rooms."""
     rng = np.random.default_rng([seed, SAMPLING_ORDER.index(generator)])
     train_rooms = training_rooms(generator)

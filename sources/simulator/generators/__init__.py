@@ -6,12 +6,15 @@
 racks), `wing` (a turning corridor with doors along it, L-shaped rooms round closets and washrooms) and
 `flats` (a floor of flats, hotel rooms or a dormitory: stair core and lift lobby, a double-loaded corridor,
 an access gallery or a dogleg, apartments of hall, passage, bathroom, kitchen, living room and bedrooms)
-share none of their layout, furniture or damage code. `palette` repaints any of them (looks.py).
+share none of their layout, furniture or damage code with the families. `hall` and `wing` share the low-level
+parts (parts.py), some pieces (things.py) and the damage kinds (wreck.py) with each other; `flats` takes only
+walls, slabs, openings, footprints and `finish` from parts.py. `palette` repaints any of them (looks.py).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from importlib import import_module
 from typing import Final
 
 from aftershock.pipeline.errors import InputError
@@ -27,30 +30,21 @@ def _family(name: str) -> Callable[[int], Scene]:
     return build
 
 
-def _hall(seed: int) -> Scene:
-    from aftershock.sources.simulator.generators.hall import build
+def _independent(module: str) -> Callable[[int], Scene]:
+    """The `build(seed)` of an independent generator's module, imported when first used."""
 
-    return build(seed)
+    def build(seed: int) -> Scene:
+        return import_module(f"{__name__}.{module}").build(seed)
 
-
-def _wing(seed: int) -> Scene:
-    from aftershock.sources.simulator.generators.wing import build
-
-    return build(seed)
-
-
-def _flats(seed: int) -> Scene:
-    from aftershock.sources.simulator.generators.flats import build
-
-    return build(seed)
+    return build
 
 
 GENERATORS: Final[dict[str, Callable[[int], Scene]]] = {
     "office": _family("office"),
     "disaster": _family("disaster"),
-    "hall": _hall,
-    "wing": _wing,
-    "flats": _flats,
+    "hall": _independent("hall"),
+    "wing": _independent("wing"),
+    "flats": _independent("flats"),
 }
 
 
