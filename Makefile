@@ -74,10 +74,15 @@ bench-batch: setup
 
 bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch
 
+# Rebuild every network from simulator data into out/weights (the shipped files in models/weights are left alone;
+# run the pipeline on the rebuilt ones with --set label.weights=out/weights/mcpnet.pt and the like).
+TRAINED := out/weights
 train: setup
-	$(BIN)/aftershock train mcpnet
-	$(BIN)/aftershock train lrgnet
-	$(BIN)/aftershock train crackembed
+	@mkdir -p $(TRAINED)
+	$(BIN)/aftershock train mcpnet --out $(TRAINED)/mcpnet.pt --force
+	$(BIN)/aftershock train lrgnet --out $(TRAINED)/lrgnet.pt --force
+	$(BIN)/aftershock train crackembed --out $(TRAINED)/crackembed.pt --force
+	$(BIN)/python -m aftershock.models.compare_weights models/weights $(TRAINED)
 
 # The README picture: the demo recording in Rerun's web viewer, headless (needs Debian's chromium).
 screenshot: demo
