@@ -29,11 +29,11 @@ REBUILD_HINT: Final = "rebuild it with `aftershock train lrgnet --force`"
 
 
 class Branch(nn.Module):
-    """Shared per-point MLP; returns the per-point 64-wide local feature and the max-pooled global one."""
+    """Shared per-point MLP; returns the per-point local feature (64 wide as shipped) and the max-pooled global one."""
 
-    def __init__(self, in_features: int) -> None:
+    def __init__(self, in_features: int, branch_widths: tuple[int, ...] = BRANCH_WIDTHS) -> None:
         super().__init__()
-        widths = (in_features, *BRANCH_WIDTHS)
+        widths = (in_features, *branch_widths)
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(widths))
 
     def local(self, x: torch.Tensor) -> torch.Tensor:
@@ -55,9 +55,9 @@ class Head(nn.Module):
     """[global 1024 ; local 64] → 256 → 128 → 2. The first layer is applied as W_g·g + W_l·l (the same
     product as on the joined vector) so the global part is computed once per region, not once per point."""
 
-    def __init__(self, global_width: int, local_width: int) -> None:
+    def __init__(self, global_width: int, local_width: int, head_widths: tuple[int, ...] = HEAD_WIDTHS) -> None:
         super().__init__()
-        widths = (global_width + local_width, *HEAD_WIDTHS)
+        widths = (global_width + local_width, *head_widths)
         self.global_width = global_width
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(widths))
 
@@ -73,14 +73,20 @@ class Head(nn.Module):
 class LRGNet(nn.Module):
     """Inputs (B, I, F) inliers and (B, J, F) neighbours; outputs remove logits (B, I, 2), add logits (B, J, 2)."""
 
-    def __init__(self, in_features: int = 16) -> None:
+    def __init__(
+        self,
+        in_features: int = 16,
+        branch_widths: tuple[int, ...] = BRANCH_WIDTHS,
+        head_widths: tuple[int, ...] = HEAD_WIDTHS,
+    ) -> None:
         super().__init__()
         self.in_features = in_features
-        self.inlier_branch = Branch(in_features)
-        self.neighbour_branch = Branch(in_features)
-        width = 2 * BRANCH_WIDTHS[-1]
-        self.remove_head = Head(width, BRANCH_WIDTHS[LOCAL_LAYER])
-        self.add_head = Head(width, BRANCH_WIDTHS[LOCAL_LAYER])
+        self.branch_widths, self.head_widths = tuple(branch_widths), tuple(head_widths)
+        self.inlier_branch = Branch(in_features, self.branch_widths)
+        self.neighbour_branch = Branch(in_features, self.branch_widths)
+        width = 2 * self.branch_widths[-1]
+        self.remove_head = Head(width, self.branch_widths[LOCAL_LAYER], self.head_widths)
+        self.add_head = Head(width, self.branch_widths[LOCAL_LAYER], self.head_widths)
 
     def encode(self, inliers: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
         """The joined global feature (B, 1024) of a region's inlier and neighbour samples."""
@@ -107,7 +113,8 @@ def num_parameters(net: nn.Module) -> int:
 
 def save_weights(path: Path, net: LRGNet, settings: dict[str, Any], figures: dict[str, Any]) -> None:
     """Weights with a header recording the settings they were trained for."""
-    header = {"format": FORMAT, "version": FORMAT_VERSION, "settings": settings, "figures": figures}
+    sizes = {"branch_widths": list(net.branch_widths), "head_widths": list(net.head_widths)}
+    header = {"format": FORMAT, "version": FORMAT_VERSION, "settings": {**settings, **sizes}, "figures": figures}
     state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
     torch.save({"header": header, "state_dict": state}, path)
 
@@ -136,10 +143,12 @@ def load_weights(path: str | Path, expected: dict[str, Any], layouts: dict[int, 
     if wrong:
         detail = ", ".join(f"{k}={a!r} (expected {b!r})" for k, (a, b) in wrong.items())
         raise InputError(f"LRGNet weights were trained for other settings: {detail}; {REBUILD_HINT}", p)
-    net = LRGNet(int(layout[1]))
+    # the layer widths are read from the header; files written before they were recorded have the shipped ones
+    widths = settings.get("branch_widths", BRANCH_WIDTHS), settings.get("head_widths", HEAD_WIDTHS)
     try:
+        net = LRGNet(int(layout[1]), *(tuple(int(w) for w in ws) for ws in widths))
         net.load_state_dict(blob["state_dict"])
-    except (RuntimeError, KeyError) as exc:
+    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
         raise InputError(f"LRGNet weights do not fit the network ({exc}); {REBUILD_HINT}", p) from None
     net.eval()
     return net, header

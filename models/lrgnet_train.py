@@ -31,7 +31,7 @@ import torch
 from torch.nn import functional as F
 
 from aftershock.models import transfer_split as split
-from aftershock.models.lrgnet import LRGNet, num_parameters, save_weights
+from aftershock.models.lrgnet import BRANCH_WIDTHS, HEAD_WIDTHS, LRGNet, num_parameters, save_weights
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.refine.features import VoxelCloud, canonical_normals, region_centre, voxelise
@@ -361,11 +361,13 @@ def fit(
     seed: int,
     epochs: int,
     checkpoint: Callable[[LRGNet, int, list[dict[str, Any]]], None] | None = None,
+    branch_widths: tuple[int, ...] = BRANCH_WIDTHS,
+    head_widths: tuple[int, ...] = HEAD_WIDTHS,
 ) -> tuple[LRGNet, dict[str, Any]]:
     """Adam with warm-up and cosine decay; `checkpoint(net, epoch, history)` after every epoch."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    net = LRGNet()
+    net = LRGNet(branch_widths=branch_widths, head_widths=head_widths)
     opt = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
     total_steps = epochs * -(-len(train_set) // BATCH)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: lr_factor(k, total_steps))
@@ -451,6 +453,8 @@ def train(
     colour_free_share: float = COLOUR_FREE_SHARE,
     generators: tuple[str, ...] = GENERATORS,
     samples_per_generator: int = GENERATOR_SAMPLES,
+    branch_widths: tuple[int, ...] = BRANCH_WIDTHS,
+    head_widths: tuple[int, ...] = HEAD_WIDTHS,
 ) -> dict:
     """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt), a
     share of them without colour (1 = a network for clouds without colour); the same seed gives the same file."""
@@ -489,7 +493,7 @@ def train(
         save_weights(p, net, settings, {**base, "epochs": epoch, "history": history})
         log.info("checkpoint %s", p)
 
-    net, figs = fit(train_set, val_set, seed, n_epochs, checkpoint)
+    net, figs = fit(train_set, val_set, seed, n_epochs, checkpoint, branch_widths, head_widths)
     figs = {**base, **figs}
     save_weights(path, net, settings, figs)
     log.info("wrote %s", path)

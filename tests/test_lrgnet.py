@@ -475,3 +475,21 @@ def test_shipped_weights_segment_a_simple_room() -> None:
     s = scores(cloud.instance_ids, res.instance_ids)
     assert s["nmi"] > 0.6 and s["ari"] > 0.4, s
     assert np.mean(res.steps_per_object) > 1
+
+
+def test_layer_widths_travel_in_the_header(tmp_path: Path) -> None:
+    """A narrower network is saved with its widths and loads as itself; widths that do not fit are refused."""
+    narrow = LRGNet(branch_widths=(32, 32, 32, 64, 256), head_widths=(128, 64, 2))
+    path = tmp_path / "narrow.pt"
+    save_weights(path, narrow, weight_settings(LRGNetConfig()), {})
+    net = load_network(LRGNetConfig(weights=str(path)))
+    assert net.branch_widths == (32, 32, 32, 64, 256) and net.head_widths == (128, 64, 2)
+    assert num_parameters(net) == num_parameters(narrow) < num_parameters(LRGNet()) // 3
+    x = torch.rand(1, 8, NUM_FEATURES)
+    for a, b in zip(net(x, x), narrow(x, x), strict=True):
+        torch.testing.assert_close(a, b)
+    blob = torch.load(path, weights_only=True)
+    blob["header"]["settings"]["branch_widths"] = [64, 64, 64, 128, 512]
+    torch.save(blob, path)
+    with pytest.raises(InputError, match="narrow.pt.*do not fit the network"):
+        load_network(LRGNetConfig(weights=str(path)))
