@@ -491,5 +491,5 @@ def test_layer_widths_travel_in_the_header(tmp_path: Path) -> None:
     blob = torch.load(path, weights_only=True)
     blob["header"]["settings"]["branch_widths"] = [64, 64, 64, 128, 512]
     torch.save(blob, path)
-    with pytest.raises(InputError, match="narrow.pt.*do not fit the network"):
+    with pytest.raises(InputError, match=r"narrow\.pt.*do not fit the network"):
         load_network(LRGNetConfig(weights=str(path)))
