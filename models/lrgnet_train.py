@@ -34,7 +34,15 @@ from aftershock.models import transfer_split as split
 from aftershock.models.lrgnet import BRANCH_WIDTHS, HEAD_WIDTHS, LRGNet, num_parameters, save_weights
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.config import LRGNetConfig
-from aftershock.pipeline.refine.features import VoxelCloud, canonical_normals, region_centre, voxelise
+from aftershock.pipeline.refine.features import (
+    NUM_FEATURES,
+    PLANE_FEATURES,
+    VoxelCloud,
+    canonical_normals,
+    plane_features,
+    region_centre,
+    voxelise,
+)
 from aftershock.pipeline.types import LabelledCloud
 
 if TYPE_CHECKING:
@@ -87,7 +95,7 @@ class Samples:
     neighbours: np.ndarray  # (S, J) int32
     remove: np.ndarray  # (S, I) bool
     add: np.ndarray  # (S, J) bool
-    centre: np.ndarray  # (S, 9) float32 per-step reference (region_centre)
+    centre: np.ndarray  # (S, 10) float32 per-step reference (region_centre)
 
     def __len__(self) -> int:
         return len(self.scene)
@@ -275,16 +283,22 @@ def merge(a: Samples, b: Samples) -> Samples:
     )  # fmt: skip
 
 
-def batch_tensors(s: Samples, idx: np.ndarray, rng: np.random.Generator | None) -> tuple[torch.Tensor, ...]:
-    """Normalised inputs and labels of a batch; with `rng`, a random flip/90° rotation about z per sample."""
+def batch_tensors(
+    s: Samples, idx: np.ndarray, rng: np.random.Generator | None, plane: bool = False
+) -> tuple[torch.Tensor, ...]:
+    """Normalised inputs and labels of a batch; with `rng`, a random flip/90° rotation about z per sample; with
+    `plane`, the plane features of layout 3 appended (as `features.step_features` does at inference)."""
     xi = np.stack([s.features[s.scene[i]][s.inliers[i]] for i in idx])
     xn = np.stack([s.features[s.scene[i]][s.neighbours[i]] for i in idx])
     c = s.centre[idx].copy()
     if rng is not None:
         _augment(xi, xn, c, rng)
+    extra = [plane_features(x, c[:, None, :]) for x in (xi, xn)] if plane else None
     for x in (xi, xn):
         x[:, :, 0:2] -= c[:, None, 0:2]
         x[:, :, 6:13] -= c[:, None, 2:9]
+    if extra is not None:
+        xi, xn = (np.concatenate([x, e], axis=-1) for x, e in zip((xi, xn), extra, strict=True))
     return (
         torch.from_numpy(xi),
         torch.from_numpy(xn),
@@ -329,11 +343,12 @@ def losses(net: LRGNet, xi: torch.Tensor, xn: torch.Tensor, rm: torch.Tensor, ad
 @torch.no_grad()
 def evaluate(net: LRGNet, s: Samples) -> dict[str, float]:
     """Loss and per-point accuracy of both masks on a sample set."""
+    plane = net.in_features > NUM_FEATURES
     net.eval()
     tot, n, rm_ok, add_ok, rm_n, add_n = 0.0, 0, 0, 0, 0, 0
     rm_tp, rm_pos, rm_pred = 0, 0, 0
     for start in range(0, len(s), BATCH):
-        xi, xn, rm, add = batch_tensors(s, np.arange(start, min(len(s), start + BATCH)), None)
+        xi, xn, rm, add = batch_tensors(s, np.arange(start, min(len(s), start + BATCH)), None, plane)
         tot += float(losses(net, xi, xn, rm, add)) * len(rm)
         n += len(rm)
         rl, al = net(xi, xn)
@@ -363,11 +378,13 @@ def fit(
     checkpoint: Callable[[LRGNet, int, list[dict[str, Any]]], None] | None = None,
     branch_widths: tuple[int, ...] = BRANCH_WIDTHS,
     head_widths: tuple[int, ...] = HEAD_WIDTHS,
+    plane: bool = False,
 ) -> tuple[LRGNet, dict[str, Any]]:
     """Adam with warm-up and cosine decay; `checkpoint(net, epoch, history)` after every epoch."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    net = LRGNet(branch_widths=branch_widths, head_widths=head_widths)
+    in_features = NUM_FEATURES + PLANE_FEATURES if plane else NUM_FEATURES
+    net = LRGNet(in_features, branch_widths, head_widths)
     opt = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
     total_steps = epochs * -(-len(train_set) // BATCH)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: lr_factor(k, total_steps))
@@ -377,7 +394,7 @@ def fit(
         order = rng.permutation(len(train_set))
         total, count = 0.0, 0
         for start in range(0, len(order), BATCH):
-            xi, xn, rm, add = batch_tensors(train_set, order[start : start + BATCH], rng)
+            xi, xn, rm, add = batch_tensors(train_set, order[start : start + BATCH], rng, plane)
             loss = losses(net, xi, xn, rm, add)
             opt.zero_grad()
             loss.backward()
@@ -455,6 +472,7 @@ def train(
     samples_per_generator: int = GENERATOR_SAMPLES,
     branch_widths: tuple[int, ...] = BRANCH_WIDTHS,
     head_widths: tuple[int, ...] = HEAD_WIDTHS,
+    plane: bool = False,
 ) -> dict:
     """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt), a
     share of them without colour (1 = a network for clouds without colour); the same seed gives the same file."""
@@ -473,7 +491,7 @@ def train(
     val_set = _cap(val_set, VAL_SAMPLES, np.random.default_rng([seed, 7]))
     data_seconds = time.perf_counter() - t0
     settings = {
-        **weight_settings(cfg), "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
+        **weight_settings(cfg, plane), "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
         "trajectory_steps": TRAJECTORY_STEPS, "colour_free_share": colour_free_share, "seed": seed,
     }  # fmt: skip
     base = {
@@ -493,7 +511,7 @@ def train(
         save_weights(p, net, settings, {**base, "epochs": epoch, "history": history})
         log.info("checkpoint %s", p)
 
-    net, figs = fit(train_set, val_set, seed, n_epochs, checkpoint, branch_widths, head_widths)
+    net, figs = fit(train_set, val_set, seed, n_epochs, checkpoint, branch_widths, head_widths, plane)
     figs = {**base, **figs}
     save_weights(path, net, settings, figs)
     log.info("wrote %s", path)

@@ -33,7 +33,13 @@ from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
 from aftershock.pipeline.refine import LAYOUTS, baseline_cloud, load_network, refine_cloud, scores, weight_settings
 from aftershock.pipeline.refine.baselines import Baseline
-from aftershock.pipeline.refine.features import NUM_FEATURES, region_centre, step_features, voxelise
+from aftershock.pipeline.refine.features import (
+    NUM_FEATURES,
+    PLANE_FEATURES,
+    region_centre,
+    step_features,
+    voxelise,
+)
 from aftershock.pipeline.refine.grow import Grower, Growth, seed_order
 from aftershock.pipeline.refine.merge import merge_coplanar, split_creases
 from aftershock.pipeline.types import LabelledCloud
@@ -157,6 +163,30 @@ def test_step_normalisation_is_relative_to_region_median() -> None:
     assert np.allclose(np.median(f[:, 6:13], axis=0), 0, atol=1e-5)
     assert np.array_equal(f[:, 2:6], vc.features[region, 2:6])  # z and room-normalised xyz untouched
     assert np.array_equal(f[:, 13:16], vc.features[region, 13:16])  # the local shape stays absolute
+
+
+def test_plane_features_of_layout_3() -> None:
+    """Distance to the region's plane and |cos| to its normal: zero and one on the region's own wall, large
+    distance and small cosine on the floor beside it; training computes them as inference does."""
+    cloud = small_room()
+    vc = voxelise(cloud, 0.1)
+    on = cloud.instance_ids[vc.first_point]
+    wall = np.flatnonzero(on == 2)
+    floor = np.flatnonzero(on == 1)
+    centre = region_centre(vc.features, wall[::3])
+    f_wall = step_features(vc.features, wall, centre, plane=True)
+    f_floor = step_features(vc.features, floor, centre, plane=True)
+    assert f_wall.shape == (len(wall), NUM_FEATURES + PLANE_FEATURES)
+    assert np.median(f_wall[:, 16]) < 0.02 and np.median(f_wall[:, 17]) > 0.98
+    assert np.median(f_floor[:, 16]) > 0.3 and np.median(f_floor[:, 17]) < 0.1
+    np.testing.assert_array_equal(f_wall[:, :NUM_FEATURES], step_features(vc.features, wall, centre))
+    samples = make_samples([cloud], LRGNetConfig(), np.random.default_rng(0), points=32)
+    xi, xn, _, _ = batch_tensors(samples, np.arange(3), None, plane=True)
+    for b in range(3):
+        feats = samples.features[samples.scene[b]]
+        for x, idx in ((xi, samples.inliers[b]), (xn, samples.neighbours[b])):
+            expected = step_features(feats, idx, samples.centre[b], plane=True)
+            np.testing.assert_allclose(x[b].numpy(), expected, atol=1e-6)
 
 
 # ----------------------------------------------------------------------------- network
@@ -291,7 +321,7 @@ def test_simulated_growth_labels_match_the_truth() -> None:
     steps = simulate_growth(vc, truth, np.random.default_rng(0), 64, 32)
     assert len(steps) > 10
     for si, sn, rm, add, centre in steps[:20]:
-        assert si.shape == (64,) and sn.shape == (32,) and centre.shape == (9,)
+        assert si.shape == (64,) and sn.shape == (32,) and centre.shape == (10,)
         target = truth[si][~rm]
         assert len(np.unique(target)) <= 1  # kept inliers all belong to one object
         assert np.all((truth[sn] == (target[0] if len(target) else -1)) == add) or not len(target)
@@ -493,3 +523,13 @@ def test_layer_widths_travel_in_the_header(tmp_path: Path) -> None:
     torch.save(blob, path)
     with pytest.raises(InputError, match=r"narrow\.pt.*do not fit the network"):
         load_network(LRGNetConfig(weights=str(path)))
+
+
+def test_weights_of_layout_3_grow_with_the_plane_features(tmp_path: Path) -> None:
+    """A file trained with the plane features loads as an 18-input network and grows a room."""
+    path = tmp_path / "plane.pt"
+    save_weights(path, LRGNet(NUM_FEATURES + PLANE_FEATURES), weight_settings(LRGNetConfig(), plane=True), {})
+    net = load_network(LRGNetConfig(weights=str(path)))
+    assert net.in_features == NUM_FEATURES + PLANE_FEATURES
+    res = refine_cloud(tiny_room(), LRGNetConfig(weights=str(path)))
+    assert len(res.instance_ids) == len(tiny_room()) and res.segments >= 1

@@ -20,7 +20,7 @@ from aftershock.models.weights_file import WEIGHTS_DIR
 from aftershock.pipeline.config import LRGNET_MODE_DEFAULTS, LRGNetConfig
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
-from aftershock.pipeline.refine.features import NUM_FEATURES, VoxelCloud, voxelise
+from aftershock.pipeline.refine.features import NUM_FEATURES, PLANE_FEATURES, VoxelCloud, voxelise
 from aftershock.pipeline.refine.grow import Grower, Search
 from aftershock.pipeline.refine.merge import merge_coplanar, split_creases
 from aftershock.pipeline.types import LabelledCloud
@@ -29,7 +29,9 @@ DEFAULT_WEIGHTS: Final = WEIGHTS_DIR / "lrgnet.pt"
 FEATURE_VERSION: Final = 2  # bump when the meaning of the features changes (2: planarity, linearity, verticality)
 # Feature layouts that weights may have been trained for (version -> features). Each is a prefix of the current
 # one, so older weights read the first columns: version 1 is the 13 features before the local shape.
-LAYOUTS: Final = {1: 13, FEATURE_VERSION: NUM_FEATURES}
+# Version 3 adds the per-step plane features (`features.plane_features`) after the 16; no shipped file has it yet.
+PLANE_VERSION: Final = 3
+LAYOUTS: Final = {1: 13, FEATURE_VERSION: NUM_FEATURES, PLANE_VERSION: NUM_FEATURES + PLANE_FEATURES}
 
 
 @dataclass(slots=True)
@@ -44,8 +46,11 @@ class RefineResult:
     settings: dict[str, float] = field(default_factory=dict)  # the mode-dependent settings it was grown with
 
 
-def weight_settings(cfg: LRGNetConfig) -> dict[str, Any]:
-    """What weights trained now for `cfg` record: the feature layout and the voxel settings."""
+def weight_settings(cfg: LRGNetConfig, plane: bool = False) -> dict[str, Any]:
+    """What weights trained now for `cfg` record: the feature layout (with `plane`, layout 3) and the voxel
+    settings."""
+    if plane:
+        return {"features": NUM_FEATURES + PLANE_FEATURES, "feature_version": PLANE_VERSION, **voxel_settings(cfg)}
     return {"features": NUM_FEATURES, "feature_version": FEATURE_VERSION, **voxel_settings(cfg)}
 
 

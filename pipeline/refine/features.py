@@ -21,6 +21,9 @@ from aftershock.pipeline.geometry import voxel_keys
 from aftershock.pipeline.types import LabelledCloud
 
 NUM_FEATURES: Final = 16
+# Per-step features of layout 3, appended after the 16: the voxel's distance to the region's plane and the cosine
+# between its normal and the region's, both sign-free — what smoothness region growing tests, made explicit.
+PLANE_FEATURES: Final = 2
 LOCAL_XY: Final = slice(0, 2)
 NORMALISED: Final = slice(6, 13)  # colour, normal, curvature: minus the region's median per step
 NORMAL: Final = slice(9, 12)
@@ -136,14 +139,29 @@ def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None)
 
 
 def region_centre(features: np.ndarray, region: np.ndarray) -> np.ndarray:
-    """The per-step reference of a region: median of x, y and of colour/normal/curvature, (9,) float32."""
+    """The per-step reference of a region: median of x, y, of colour/normal/curvature and of z, (10,) float32."""
     f = features[region]
-    return np.concatenate([np.median(f[:, LOCAL_XY], axis=0), np.median(f[:, NORMALISED], axis=0)]).astype(np.float32)
+    medians = [np.median(f[:, LOCAL_XY], axis=0), np.median(f[:, NORMALISED], axis=0), np.median(f[:, 2:3], axis=0)]
+    return np.concatenate(medians).astype(np.float32)
 
 
-def step_features(features: np.ndarray, idx: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Features of the points `idx`, normalised by a region's reference from `region_centre`."""
+def plane_features(raw: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(..., 2) distance of each voxel to the plane through the region's median point along its median normal, and
+    |cos| between the voxel's normal and that normal; `raw` (..., 16) features before normalisation, `centre`
+    (..., 10) their region's reference (leading dimensions broadcast)."""
+    n = centre[..., 5:8]
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
+    offset = np.concatenate([raw[..., 0:2] - centre[..., 0:2], raw[..., 2:3] - centre[..., 9:10]], axis=-1)
+    distance = np.abs((offset * n).sum(axis=-1))
+    cosine = np.abs((raw[..., NORMAL] * n).sum(axis=-1))
+    return np.stack([distance, cosine], axis=-1).astype(np.float32)
+
+
+def step_features(features: np.ndarray, idx: np.ndarray, centre: np.ndarray, plane: bool = False) -> np.ndarray:
+    """Features of the points `idx`, normalised by a region's reference from `region_centre`; with `plane`, the
+    two plane features of layout 3 appended."""
     f = features[idx].copy()
+    extra = plane_features(f, centre) if plane else None
     f[:, LOCAL_XY] -= centre[:2]
-    f[:, NORMALISED] -= centre[2:]
-    return f
+    f[:, NORMALISED] -= centre[2:9]
+    return f if extra is None else np.concatenate([f, extra], axis=1)
