@@ -78,6 +78,7 @@ TRAIN_POINTS: Final = 128  # I = J while training (inference pools up to 512): m
 SAMPLES_PER_ROOM: Final = 1000  # cap, so that large rooms do not crowd out the others
 GENERATOR_SAMPLES: Final = 16_000  # cap per generator, so that office's many rooms do not crowd out the hall
 EPOCHS: Final = 8  # each pass with other flips and rotations; 2 (1,318 steps) lost on validation, 8 won (README)
+PLANE: Final = True  # the per-step plane features (feature layout 3): won on validation in #12 round P2 (README)
 BATCH: Final = 64
 LEARNING_RATE: Final = 1e-3  # peak; linear warm-up, then cosine decay to zero over the run
 WARMUP_STEPS: Final = 30
@@ -472,7 +473,7 @@ def train(
     samples_per_generator: int = GENERATOR_SAMPLES,
     branch_widths: tuple[int, ...] = BRANCH_WIDTHS,
     head_widths: tuple[int, ...] = HEAD_WIDTHS,
-    plane: bool = False,
+    plane: bool = PLANE,
 ) -> dict:
     """`aftershock train lrgnet`: the training generators' rooms into `out` (default the shipped lrgnet.pt), a
     share of them without colour (1 = a network for clouds without colour); the same seed gives the same file."""
