@@ -1,6 +1,7 @@
 """LRGNet: a learnable step of region growing.
 
-Two point branches (the region's inliers and its neighbours), each a shared MLP 16→64→64→64→128→512 with a
+Two point branches (the region's inliers and its neighbours), each a shared MLP F→64→64→64→128→512 (F = 18 inputs
+in feature layout 3, 16 or 13 in older files; the widths are recorded in the weights header) with a
 max-pooled global feature; the two global features joined (1024) go back to every point together with the
 point's own 64-wide second-layer feature (1088) into a head 256→128→2: one head says which inliers to remove,
 the other which neighbours to add. No normalisation layers, so a point's output depends only on itself and
