@@ -14,17 +14,20 @@ from typing import Final
 
 import torch
 
+from aftershock.models.weights_file import read_weights
+from aftershock.pipeline.errors import InputError
+
 # Where each weights format keeps its tensors: MCPNet/PointNet "state", LRGNet "state_dict", CrackEmbed "state".
 STATE_KEYS: Final = ("state_dict", "state")
 
 
 def tensors(path: Path) -> dict[str, torch.Tensor]:
     """The named tensors of a weights file of any of the project's formats."""
-    blob = torch.load(path, map_location="cpu", weights_only=True)
+    blob = read_weights(path, "aftershock", "rebuild it with `make train`")
     for key in STATE_KEYS:
-        if isinstance(blob, dict) and isinstance(blob.get(key), dict):
+        if isinstance(blob.get(key), dict):
             return {name: t for name, t in blob[key].items() if isinstance(t, torch.Tensor)}
-    raise ValueError(f"{path}: no tensors found (not an aftershock weights file)")
+    raise InputError("no tensors found: not an aftershock weights file", path)
 
 
 def compare(shipped: Path, rebuilt: Path) -> str:
@@ -34,10 +37,11 @@ def compare(shipped: Path, rebuilt: Path) -> str:
         return "another layout (names or shapes differ)"
     if all(torch.equal(a[k], b[k]) for k in a):
         return f"same, tensor for tensor ({sum(t.numel() for t in a.values()):,} values)"
-    diffs = [(a[k].float() - b[k].float()).abs().max().item() for k in a if a[k].is_floating_point()]
-    scale = max(t.float().abs().max().item() for t in a.values() if t.is_floating_point())
+    diffs = [(a[k].float() - b[k].float()).abs().max().item() for k in a if a[k].numel()]
+    scale = max((t.float().abs().max().item() for t in a.values() if t.numel()), default=0.0)
     changed = sum(not torch.equal(a[k], b[k]) for k in a)
-    return f"differs: {changed} of {len(a)} tensors, largest difference {max(diffs):.3g} (largest weight {scale:.3g})"
+    largest = max(diffs, default=0.0)
+    return f"differs: {changed} of {len(a)} tensors, largest difference {largest:.3g} (largest weight {scale:.3g})"
 
 
 def main(argv: list[str]) -> int:
@@ -49,10 +53,15 @@ def main(argv: list[str]) -> int:
     if not rebuilt:
         print(f"{rebuilt_dir}: no weights files to compare", file=sys.stderr)
         return 2
+    status = 0
     for path in rebuilt:
         ref = shipped_dir / path.name
-        print(f"{path.name}: " + (compare(ref, path) if ref.is_file() else "no shipped file of that name"))
-    return 0
+        try:
+            print(f"{path.name}: " + (compare(ref, path) if ref.is_file() else "no shipped file of that name"))
+        except InputError as exc:  # one line naming the file, and the other files still compared
+            print(f"{path.name}: {exc}", file=sys.stderr)
+            status = 2
+    return status
 
 
 if __name__ == "__main__":

@@ -35,11 +35,17 @@ from aftershock.models.lrgnet import BRANCH_WIDTHS, HEAD_WIDTHS, LRGNet, num_par
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.refine.features import (
+    CENTRE_NORMAL,
+    CENTRE_NORMALISED,
+    CENTRE_XY,
+    LOCAL_XY,
+    NORMALISED,
     NUM_FEATURES,
     PLANE_FEATURES,
     VoxelCloud,
     canonical_normals,
     plane_features,
+    reads_plane,
     region_centre,
     voxelise,
 )
@@ -296,8 +302,8 @@ def batch_tensors(
         _augment(xi, xn, c, rng)
     extra = [plane_features(x, c[:, None, :]) for x in (xi, xn)] if plane else None
     for x in (xi, xn):
-        x[:, :, 0:2] -= c[:, None, 0:2]
-        x[:, :, 6:13] -= c[:, None, 2:9]
+        x[:, :, LOCAL_XY] -= c[:, None, CENTRE_XY]  # as features.step_features, for a batch
+        x[:, :, NORMALISED] -= c[:, None, CENTRE_NORMALISED]
     if extra is not None:
         xi, xn = (np.concatenate([x, e], axis=-1) for x, e in zip((xi, xn), extra, strict=True))
     return (
@@ -313,8 +319,8 @@ def _augment(xi: np.ndarray, xn: np.ndarray, centre: np.ndarray, rng: np.random.
     rotations) on the raw features and the region's reference; normals get their canonical sign back."""
     b = len(xi)
     flip_x, flip_y, swap = (rng.random(b) < 0.5 for _ in range(3))
-    cn = centre[:, None, 5:8]  # the reference normal, as a one-point array
-    cxy = centre[:, None, 0:2]
+    cn = centre[:, None, CENTRE_NORMAL]  # the reference normal, as a one-point array
+    cxy = centre[:, None, CENTRE_XY]
     for x, (xy, room, normal) in ((xi, (0, 3, 9)), (xn, (0, 3, 9)), (cxy, (0, None, None)), (cn, (None, None, 0))):
         for axis, sel in ((0, flip_x), (1, flip_y)):
             for col in (xy, normal):
@@ -327,8 +333,8 @@ def _augment(xi: np.ndarray, xn: np.ndarray, centre: np.ndarray, rng: np.random.
                 x[swap, :, col], x[swap, :, col + 1] = x[swap, :, col + 1].copy(), x[swap, :, col].copy()
     for x, col in ((xi, 9), (xn, 9), (cn, 0)):
         x[:, :, col : col + 3] = canonical_normals(x[:, :, col : col + 3])
-    centre[:, 0:2] = cxy[:, 0]
-    centre[:, 5:8] = cn[:, 0]
+    centre[:, CENTRE_XY] = cxy[:, 0]
+    centre[:, CENTRE_NORMAL] = cn[:, 0]
 
 
 def losses(net: LRGNet, xi: torch.Tensor, xn: torch.Tensor, rm: torch.Tensor, add: torch.Tensor) -> torch.Tensor:
@@ -344,7 +350,7 @@ def losses(net: LRGNet, xi: torch.Tensor, xn: torch.Tensor, rm: torch.Tensor, ad
 @torch.no_grad()
 def evaluate(net: LRGNet, s: Samples) -> dict[str, float]:
     """Loss and per-point accuracy of both masks on a sample set."""
-    plane = net.in_features > NUM_FEATURES
+    plane = reads_plane(net.in_features)
     net.eval()
     tot, n, rm_ok, add_ok, rm_n, add_n = 0.0, 0, 0, 0, 0, 0
     rm_tp, rm_pos, rm_pred = 0, 0, 0

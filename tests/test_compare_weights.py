@@ -27,3 +27,12 @@ def test_shipped_files_equal_themselves_and_a_changed_tensor_shows(tmp_path: Pat
 def test_nothing_to_compare_is_a_usage_error(tmp_path: Path, capsys) -> None:
     assert main([str(WEIGHTS_DIR), str(tmp_path)]) == 2
     assert "no weights files" in capsys.readouterr().err
+
+
+def test_an_unreadable_file_is_one_line_and_the_others_are_still_compared(tmp_path: Path, capsys) -> None:
+    shutil.copy(WEIGHTS_DIR / "crackembed.pt", tmp_path / "crackembed.pt")
+    (tmp_path / "lrgnet.pt").write_bytes(b"not a weights file")
+    assert main([str(WEIGHTS_DIR), str(tmp_path)]) == 2
+    out, err = capsys.readouterr()
+    assert out.startswith("crackembed.pt: same, tensor for tensor")
+    assert err.count("\n") == 1 and err.startswith("lrgnet.pt:") and "lrgnet.pt" in err[len("lrgnet.pt:") :]

@@ -50,9 +50,8 @@ class RefineResult:
 def weight_settings(cfg: LRGNetConfig, plane: bool = False) -> dict[str, Any]:
     """What weights trained now for `cfg` record: the feature layout (with `plane`, layout 3) and the voxel
     settings."""
-    if plane:
-        return {"features": NUM_FEATURES + PLANE_FEATURES, "feature_version": PLANE_VERSION, **voxel_settings(cfg)}
-    return {"features": NUM_FEATURES, "feature_version": FEATURE_VERSION, **voxel_settings(cfg)}
+    version = PLANE_VERSION if plane else FEATURE_VERSION
+    return {"features": LAYOUTS[version], "feature_version": version, **voxel_settings(cfg)}
 
 
 def voxel_settings(cfg: LRGNetConfig) -> dict[str, Any]:

@@ -26,8 +26,14 @@ NUM_FEATURES: Final = 16
 # between its normal and the region's, both sign-free — what smoothness region growing tests, made explicit.
 PLANE_FEATURES: Final = 2
 LOCAL_XY: Final = slice(0, 2)
+HEIGHT: Final = slice(2, 3)
 NORMALISED: Final = slice(6, 13)  # colour, normal, curvature: minus the region's median per step
 NORMAL: Final = slice(9, 12)
+# The region's reference (`region_centre`): median x, y | colour, normal, curvature (NORMALISED) | z.
+CENTRE_XY: Final = slice(0, 2)
+CENTRE_NORMALISED: Final = slice(2, 9)
+CENTRE_NORMAL: Final = slice(5, 8)
+CENTRE_Z: Final = slice(9, 10)
 
 
 def neighbour_offsets(reach: int) -> np.ndarray:
@@ -142,17 +148,22 @@ def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None)
 def region_centre(features: np.ndarray, region: np.ndarray) -> np.ndarray:
     """The per-step reference of a region: median of x, y, of colour/normal/curvature and of z, (10,) float32."""
     f = features[region]
-    medians = [np.median(f[:, LOCAL_XY], axis=0), np.median(f[:, NORMALISED], axis=0), np.median(f[:, 2:3], axis=0)]
+    medians = [np.median(f[:, cols], axis=0) for cols in (LOCAL_XY, NORMALISED, HEIGHT)]
     return np.concatenate(medians).astype(np.float32)
+
+
+def reads_plane(in_features: int) -> bool:
+    """Whether a network with this many inputs was trained on feature layout 3 (the plane features)."""
+    return in_features > NUM_FEATURES
 
 
 def plane_features(raw: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """(..., 2) distance of each voxel to the plane through the region's median point along its median normal, and
     |cos| between the voxel's normal and that normal; `raw` (..., 16) features before normalisation, `centre`
     (..., 10) their region's reference (leading dimensions broadcast)."""
-    n = centre[..., 5:8]
+    n = centre[..., CENTRE_NORMAL]
     n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
-    offset = np.concatenate([raw[..., 0:2] - centre[..., 0:2], raw[..., 2:3] - centre[..., 9:10]], axis=-1)
+    offset = np.concatenate([raw[..., LOCAL_XY] - centre[..., CENTRE_XY], raw[..., HEIGHT] - centre[..., CENTRE_Z]], -1)
     distance = np.abs((offset * n).sum(axis=-1))
     cosine = np.abs((raw[..., NORMAL] * n).sum(axis=-1))
     return np.stack([distance, cosine], axis=-1).astype(np.float32)
@@ -163,6 +174,6 @@ def step_features(features: np.ndarray, idx: np.ndarray, centre: np.ndarray, pla
     two plane features of layout 3 appended."""
     f = features[idx].copy()
     extra = plane_features(f, centre) if plane else None
-    f[:, LOCAL_XY] -= centre[:2]
-    f[:, NORMALISED] -= centre[2:9]
+    f[:, LOCAL_XY] -= centre[CENTRE_XY]
+    f[:, NORMALISED] -= centre[CENTRE_NORMALISED]
     return f if extra is None else np.concatenate([f, extra], axis=1)

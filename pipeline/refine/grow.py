@@ -18,7 +18,7 @@ import torch
 
 from aftershock.models.lrgnet import LRGNet
 from aftershock.pipeline.config import LRGNetConfig
-from aftershock.pipeline.refine.features import NORMAL, NUM_FEATURES, VoxelCloud, region_centre, step_features
+from aftershock.pipeline.refine.features import NORMAL, VoxelCloud, reads_plane, region_centre, step_features
 from aftershock.pipeline.refine.merge import MAX_FLATNESS
 
 CHUNK: Final = 8192  # candidates per head evaluation
@@ -72,6 +72,7 @@ class Grower:
     def __init__(self, vc: VoxelCloud, net: LRGNet, cfg: LRGNetConfig) -> None:
         self.vc = vc
         self.net = net
+        self.plane = reads_plane(net.in_features)  # weights of layout 3 read the per-step plane features too
         self.cfg = cfg.for_colour(vc.colour)  # the add threshold depends on whether the cloud has colour
         self.rng = np.random.default_rng(cfg.seed)
         self.labelled = np.zeros(len(vc), bool)
@@ -99,9 +100,8 @@ class Grower:
         self.network_steps += 1
         f = self.vc.features
         centre = region_centre(f, region)
-        plane = self.net.in_features > NUM_FEATURES  # layout 3 reads the plane features too
-        si = torch.from_numpy(step_features(f, self._sample(region, self.cfg.inliers), centre, plane))
-        sn = torch.from_numpy(step_features(f, self._sample(candidates, self.cfg.neighbours), centre, plane))
+        si = torch.from_numpy(step_features(f, self._sample(region, self.cfg.inliers), centre, self.plane))
+        sn = torch.from_numpy(step_features(f, self._sample(candidates, self.cfg.neighbours), centre, self.plane))
         g = self.net.encode(si[None], sn[None])[0]
         return self._heads(g, region, centre, remove=True), self._heads(g, candidates, centre, remove=False)
 
@@ -109,8 +109,7 @@ class Grower:
         out = np.empty(len(idx), np.float32)
         fn = self.net.remove_logits if remove else self.net.add_logits
         for s in range(0, len(idx), CHUNK):
-            plane = self.net.in_features > NUM_FEATURES
-            x = torch.from_numpy(step_features(self.vc.features, idx[s : s + CHUNK], centre, plane))
+            x = torch.from_numpy(step_features(self.vc.features, idx[s : s + CHUNK], centre, self.plane))
             out[s : s + CHUNK] = torch.softmax(fn(g, x), dim=-1)[:, 1].numpy()
         return out
 
