@@ -20,6 +20,8 @@ _CODE_SPAN = re.compile(r"(`+)(?:.+?)\1")
 _SCHEME = re.compile(r"^[a-z][a-z0-9+.-]*:", re.IGNORECASE)
 _MAKE = re.compile(r"(?<![\w-])make ([a-z][\w-]*)")
 _TARGET = re.compile(r"^([A-Za-z0-9_.-]+)\s*:(?!=)", re.MULTILINE)
+_DOCS_LINK = re.compile(r"\bdocs/[\w/.-]+\.md(?:#[\w-]+)?")
+CODE_FOLDERS = ("pipeline", "sources", "sinks", "models", "tests")
 
 
 def markdown_files() -> list[Path]:
@@ -79,6 +81,26 @@ def broken_links(path: Path) -> list[str]:
 @pytest.mark.parametrize("page", markdown_files(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_relative_link_resolves_to_an_existing_file_and_heading(page: Path) -> None:
     assert broken_links(page) == []
+
+
+def docs_links_in_code(root: Path) -> dict[str, list[str]]:
+    """Every `docs/….md#anchor` named in the Python code under `root`, with the files that name it."""
+    named: dict[str, list[str]] = {}
+    for folder in CODE_FOLDERS:
+        for source in sorted((root / folder).rglob("*.py")):
+            for link in _DOCS_LINK.findall(source.read_text(encoding="utf-8")):
+                named.setdefault(link, []).append(str(source.relative_to(root)))
+    return named
+
+
+def test_every_docs_page_and_anchor_a_code_comment_names_exists() -> None:
+    missing = {}
+    for link, sources in docs_links_in_code(ROOT).items():
+        file_part, _, anchor = link.partition("#")
+        page = ROOT / file_part
+        if not page.exists() or (anchor and anchor not in anchors(page)):
+            missing[link] = sources
+    assert missing == {}
 
 
 def test_anchors_follow_githubs_slug_rules_with_repeated_headings_numbered(tmp_path: Path) -> None:
