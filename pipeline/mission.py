@@ -86,7 +86,7 @@ def open_scans(source: str, cfg: Config, quiet: bool) -> tuple[Iterator[Scan], R
         source_kind=desc.kind.value,
         topic=desc.topic,
         log_start_ns=desc.log_start_ns,
-        raw_in_log=desc.viewer_reads,
+        raw_in_log=desc.raw_in_log,
         log_id=desc.log_id,
         report=report,
     )

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures import interruptible, write_ros2_mcap
+from faults_data import write_log
+from fixtures import chunk_offsets, interruptible, write_ros2_mcap
 from rrd_read import read_rrd, rrd_verify
 
 from aftershock.pipeline.classes import NUM_CLASSES, SemanticClass
@@ -432,3 +433,24 @@ def test_the_on_demand_stages_and_exports_see_whether_the_log_had_colour(color: 
     assert res.vmap.has_colour is color and (seen[0].colors is not None) is color
     exported = read_cloud(sink.map_path)
     assert len(exported) == len(res.vmap) and (exported.colors is not None) is color
+
+
+def test_a_cut_log_with_damage_json_keeps_why_it_ended_beside_the_damage_report(tmp_path: Path, capsys) -> None:
+    """`run CUT.mcap --damage --json` on a log cut off in the middle of a chunk: `damage` says why the log
+    ended (as in summary.json and `info --json`), `damage_report` is the damage assessment (as in damage.json);
+    the report once overwrote the reason under one key (docs/json.md)."""
+    log = write_log(tmp_path / "log.mcap", 12, chunk_size=50_000)
+    start, length = chunk_offsets(log)[6]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(log.read_bytes()[: start + length // 2])
+    out = tmp_path / "out"
+    args = ["run", str(cut), "--labeller", "region-growing", "--damage", "--export", str(out), "-q", "--json"]
+    code, stdout, err = _run_cli(args, capsys)
+    assert code == 0, err
+    result = json.loads(stdout)
+    assert result["damaged_log"] is True and isinstance(result["damage"], str) and "cut off" in result["damage"]
+    assert 5 <= result["scans"] < 12
+    assert result["damage"] == json.loads((out / "summary.json").read_text())["damage"]
+    report = result["damage_report"]
+    assert {"cracks", "stories", "seconds"} <= set(report)
+    assert report == json.loads((out / "damage.json").read_text())

@@ -94,7 +94,7 @@ def view(
 
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=rid or recording_id_for(desc.log_id))
     rr.set_log_time_enabled(False, recording=rec)
-    blueprint = L.default_blueprint(log_topic=desc.topic if desc.viewer_reads else None)
+    blueprint = L.default_blueprint(log_topic=desc.topic if desc.raw_in_log else None)
     viewer = None
     if out is not None:
         rec.set_sinks(rr.FileSink(out), default_blueprint=blueprint)
