@@ -9,7 +9,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ from aftershock.pipeline.classes import NUM_CLASSES, SemanticClass
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.config import load_config
 from aftershock.pipeline.stream import run_stream
-from aftershock.pipeline.types import RunInfo, Scan
+from aftershock.pipeline.types import RunInfo
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks.rerun_sink import RerunSink
 
@@ -312,41 +311,7 @@ def test_unknown_labeller_and_bad_override(lidar_dir: Path, capsys) -> None:
     assert code == 2 and "map.voxel_size_m" in err
 
 
-def test_a_scan_registration_cannot_align_is_marked_and_the_run_goes_on(lidar_dir: Path) -> None:
-    from aftershock import sources
-
-    scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
-    scans.insert(2, scans[1].select(np.arange(30)))  # a scan of 30 points in the middle of the log
-    for k, s in enumerate(scans):
-        s.seq = k
-    cfg = load_config(None, ['label.labeller="region-growing"'])
-    result = run_stream(scans, cfg, [], RunInfo("test", "mcap"), notice=lambda _t: None)
-    assert result.summary.scans == 5 and result.summary.registration_failures == [2]
-
-
 # ----------------------------------------------------------------------------------- Ctrl-C
-
-
-def _interrupted(scans: list[Scan], after: int) -> Iterator[Scan]:
-    for k, s in enumerate(scans):
-        if k == after:
-            raise KeyboardInterrupt
-        yield s
-
-
-def test_interrupt_leaves_a_valid_recording_of_what_was_processed(lidar_dir: Path, tmp_path: Path) -> None:
-    from aftershock import sources
-
-    scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
-    out = tmp_path / "stopped.rrd"
-    cfg = load_config(None, ['label.labeller="region-growing"'])
-    sink = RerunSink(out, False, None, cfg.rerun, False)
-    result = run_stream(_interrupted(scans, 3), cfg, [sink], RunInfo(str(out), "mcap"), notice=lambda _t: None)
-    assert result.summary.interrupted and result.summary.scans == 3
-    rec = read_rrd(out)
-    assert len(rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)) == 3
-    assert rec.under(L.MAP)
-    assert rrd_verify(out).returncode == 0
 
 
 def test_ctrl_c_on_the_command_line(tmp_path: Path) -> None:
