@@ -287,7 +287,7 @@ class OnDemand:
             "points": len(cloud),
             "seconds": round(perf_counter() - t0, 3),
             "mean_steps_per_object": float(np.mean(result.steps_per_object)) if result.steps_per_object else 0.0,
-            "colour": result.colour,  # the map had colour (else it was refined with the colour-free settings)
+            "colour": result.color,  # the map had colour (else it was refined with the colour-free settings)
             "settings": result.settings,
         }
 

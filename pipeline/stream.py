@@ -231,7 +231,7 @@ def final_cloud(vmap: VoxelMap) -> LabelledCloud:
     """The map at the end of a run; without colour when no scan had any (not the grey the map stores for such
     points): LRGNet and the damage assessment then take their colour-free settings, and exports say so."""
     cloud = vmap.to_cloud()
-    if not vmap.has_colour:
+    if not vmap.has_color:
         cloud.colors = None
     return cloud
 

@@ -378,7 +378,7 @@ def test_a_truth_stand_in_on_a_log_without_truth_is_refused(lidar_dir: Path, cap
 
 
 @pytest.mark.parametrize("color", [True, False])
-def test_the_on_demand_stages_and_exports_see_whether_the_log_had_colour(color: bool, tmp_path: Path) -> None:
+def test_the_on_demand_stages_and_exports_see_whether_the_log_had_color(color: bool, tmp_path: Path) -> None:
     """LRGNet and the damage assessment get the final map without colour when no scan had any (not the map's
     stand-in grey), so that a colour-free log is refined with the colour-free settings; the exported map of
     such a log reads back without colour (its PLY says the colour is a stand-in)."""
@@ -395,7 +395,7 @@ def test_the_on_demand_stages_and_exports_see_whether_the_log_had_colour(color: 
         on_final_map=lambda cloud, _sinks: seen.append(cloud),
     )  # fmt: skip
     assert len(seen) == 1 and len(seen[0]) == len(res.vmap) > 0
-    assert res.vmap.has_colour is color and (seen[0].colors is not None) is color
+    assert res.vmap.has_color is color and (seen[0].colors is not None) is color
     exported = read_cloud(sink.map_path)
     assert len(exported) == len(res.vmap) and (exported.colors is not None) is color
 

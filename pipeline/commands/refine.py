@@ -59,7 +59,7 @@ def refine(
         "seconds": round(result.seconds, 3),
         "grown_regions": len(steps),
         "steps_per_object": round(float(steps.mean()), 2) if len(steps) else 0.0,
-        "colour": result.colour,  # whether the cloud had colour: which mode's settings it was grown with
+        "colour": result.color,  # whether the cloud had colour: which mode's settings it was grown with
         "settings": result.settings,
     }
     methods: dict[str, dict] = {}
