@@ -2,7 +2,7 @@
 
     result = run_stream(sources.open(path), cfg, sinks, RunInfo(source=path, source_kind="mcap"))
 
-Stages are generator functions chained lazily. With `stream.overlap` (opt-in) reading and registering
+Stages are generator functions chained lazily (`stage_chain`, first below). With `stream.overlap` (opt-in) reading and registering
 run on a second thread, at most `stream.ahead` scans ahead, while the main thread labels, clusters and tells
 the sinks (the slow parts of both release the GIL: KISS-ICP, PyTorch, numpy); every sink call still happens
 on the main thread in the same order as without it, so the outputs are the same. The accumulated map
