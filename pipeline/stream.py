@@ -2,14 +2,14 @@
 
     result = run_stream(sources.open(path), cfg, sinks, RunInfo(source=path, source_kind="mcap"))
 
-Stages are generator functions chained lazily (`stage_chain`, first below). With `stream.overlap` (opt-in) reading and registering
-run on a second thread, at most `stream.ahead` scans ahead, while the main thread labels, clusters and tells
-the sinks (the slow parts of both release the GIL: KISS-ICP, PyTorch, numpy); every sink call still happens
-on the main thread in the same order as without it, so the outputs are the same. The accumulated map
-goes to the sinks every `cfg.rerun.map_every` scans (decided here only) and once at the end. Sinks always
-get `close()`, and after a Ctrl-C also `end()` with what was processed, so their files stay valid; the result then says
-`interrupted` and counts the scans that went through every stage (the one in flight may have reached the
-sinks for its first stages).
+Stages are generator functions chained lazily (`stage_chain`, first below). With `stream.overlap` (opt-in)
+reading and registering run on a second thread, at most `stream.ahead` scans ahead, while the main thread
+labels, clusters and tells the sinks (the slow parts of both release the GIL: KISS-ICP, PyTorch, numpy); every
+sink call still happens on the main thread in the same order as without it, so the outputs are the same. The
+accumulated map goes to the sinks every `cfg.rerun.map_every` scans (decided here only) and once at the end.
+Sinks always get `close()`, and after a Ctrl-C also `end()` with what was processed, so their files stay valid;
+the result then says `interrupted` and counts the scans that went through every stage (the one in flight may
+have reached the sinks for its first stages).
 """
 
 from __future__ import annotations
