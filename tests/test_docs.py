@@ -18,10 +18,22 @@ _HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
 _LINK = re.compile(r"!?\[(?:[^\]\\]|\\.)*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
 _CODE_SPAN = re.compile(r"(`+)(?:.+?)\1")
 _SCHEME = re.compile(r"^[a-z][a-z0-9+.-]*:", re.IGNORECASE)
-_MAKE = re.compile(r"(?<![\w-])make ([a-z][\w-]*)")
+_MAKE = re.compile(r"^\s*make ([a-z][\w-]*)")
 _TARGET = re.compile(r"^([A-Za-z0-9_.-]+)\s*:(?!=)", re.MULTILINE)
 _DOCS_LINK = re.compile(r"\bdocs/[\w/.-]+\.md(?:#[\w-]+)?")
 CODE_FOLDERS = ("pipeline", "sources", "sinks", "models", "tests")
+
+
+def code_snippets(text: str) -> Iterator[str]:
+    """The inline code spans and the lines of fenced code blocks of a Markdown text."""
+    fenced = False
+    for line in text.splitlines():
+        if _FENCE.match(line):
+            fenced = not fenced
+        elif fenced:
+            yield line
+        else:
+            yield from (match.group(0).strip("`") for match in _CODE_SPAN.finditer(line))
 
 
 def markdown_files() -> list[Path]:
@@ -133,10 +145,15 @@ def test_a_missing_file_or_anchor_is_reported_and_outside_links_and_code_are_not
 
 
 def test_every_make_target_the_readme_names_exists_in_the_makefile() -> None:
-    named = set(_MAKE.findall(README.read_text(encoding="utf-8")))
+    named = {m.group(1) for code in code_snippets(README.read_text(encoding="utf-8")) if (m := _MAKE.match(code))}
     targets = set(_TARGET.findall((ROOT / "Makefile").read_text(encoding="utf-8")))
     assert {"demo", "test"} <= named
     assert named - targets == set()
+
+
+def test_make_commands_are_read_from_code_not_from_prose() -> None:
+    text = "To make the map, run `make demo` or `make bench-io`.\n\n```bash\nmake test   # all\n```\n"
+    assert [m.group(1) for code in code_snippets(text) if (m := _MAKE.match(code))] == ["demo", "bench-io", "test"]
 
 
 def test_the_readme_stays_a_front_page_under_320_lines() -> None:
