@@ -16,7 +16,7 @@ import numpy as np
 
 from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.types import Frame, Labels
+from aftershock.pipeline.types import Frame, Labels, MapRows
 from aftershock.pipeline.voxel_map import VoxelMap
 
 # name -> module under pipeline.labellers
@@ -40,7 +40,7 @@ class Labeller(Protocol):
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         """Fill `class_ids`, `scores` (and where it has them `normals`, `embeddings`) of the new rows.
-        `frame` is registered (pose, world points) and `frame.keep` marks the points given to the map."""
+        `frame` is registered (pose, world points) and `frame.map_rows` says which points went into the map."""
         ...
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
@@ -80,27 +80,20 @@ def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float
     scan = frame.scan
     n = len(scan)
     if not frame.registration_ok or frame.world_points is None:
-        frame.keep = np.zeros(n, bool)
-        frame.new_voxel_points = np.zeros(0, np.int64)
-        frame.voxel_points = np.zeros(0, np.int64)
-        frame.kept_rows = np.zeros(0, np.int64)
+        frame.map_rows = MapRows.empty()
         frame.labels = Labels.empty(n)
         frame.counts.update(kept=0, new_voxels=0, map_voxels=len(vmap))
         return frame
-    frame.keep = np.hypot(scan.points[:, 0], scan.points[:, 1]) <= range_m
-    idx = np.flatnonzero(frame.keep)
+    idx = np.flatnonzero(np.hypot(scan.points[:, 0], scan.points[:, 1]) <= range_m)
 
     def pick(a: np.ndarray | None) -> np.ndarray | None:
         return None if a is None else a[idx]
 
-    first_new = len(vmap)
     new_rows, rows = vmap.insert(
         frame.world_points[idx], pick(scan.colors), scan.seq, pick(scan.class_ids), pick(scan.instance_ids)
     )
-    frame.kept_rows = rows
-    touched, first = np.unique(rows, return_index=True)  # rows are numbered in first-point order
-    frame.voxel_points = idx[first]
-    frame.new_voxel_points = frame.voxel_points[touched >= first_new]
+    _, first = np.unique(rows, return_index=True)  # rows are numbered in first-point order
+    frame.map_rows = MapRows(points=idx, rows=rows, new_rows=new_rows, first_points=idx[first])
     if len(new_rows):
         labeller.label(vmap, new_rows, frame)
     labels = Labels.empty(n)

@@ -277,7 +277,7 @@ def _run(
 
     vmap = VoxelMap.from_config(cfg.map, labeller.embedding_dim)
     registrar = make_registrar(cfg.registration, environment)
-    clusterer = InstanceClusterer.from_config(cfg.cluster, labeller.affinity, labeller.embedding_dim)
+    clusterer = InstanceClusterer(cfg.cluster, labeller.affinity, labeller.embedding_dim)
     all_scans = (s for part in (skipped, [first], it) for s in part)
 
     registered: Iterator[Frame] = register_stage(_timed_source(all_scans), registrar)

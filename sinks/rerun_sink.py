@@ -536,13 +536,13 @@ class RerunSink(Sink):
 
     def _labelled_subset(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         """World points kept for labelling, and their indices into the scan."""
-        idx = np.flatnonzero(frame.keep) if frame.keep is not None else np.arange(len(frame.scan))
+        idx = frame.map_rows.points if frame.map_rows is not None else np.arange(len(frame.scan))
         return _world_points(frame)[idx], idx
 
     def _one_per_voxel(self, frame: Frame) -> np.ndarray:
         """Indices of one kept point per map voxel: as the labelling stage found them, else downsampled here."""
-        if frame.voxel_points is not None:
-            return frame.voxel_points
+        if frame.map_rows is not None:
+            return frame.map_rows.first_points
         pts, idx = self._labelled_subset(frame)
         return idx[voxel_downsample(pts, self.cfg.map_voxel_m)[0]] if len(pts) else idx
 

@@ -156,9 +156,8 @@ class MCPNetLabeller:
         floor_z = floor_height(world)
         use_color = frame.scan.colors is not None
         rows = np.asarray(new_rows, dtype=np.int64)
-        if self.relabel and frame.keep is not None and len(vmap):
-            seen = vmap.lookup_points(world[frame.keep])
-            seen = np.unique(seen[seen >= 0])
+        if self.relabel and frame.map_rows is not None and len(vmap):
+            seen = np.unique(frame.map_rows.rows)
             old = seen[vmap.first_seq[seen] < frame.seq]
             budget = RELABEL_PER_NEW * len(rows)  # bounded: relabelling must not dominate the scan time
             rows_old = self.rng.choice(old, budget, replace=False) if len(old) > budget else old
@@ -177,9 +176,8 @@ class MCPNetLabeller:
             self.raw_class[rows_old[better]] = classes[n:][better]
             self.raw_score[rows_old[better]] = scores[n:][better]
             vmap.class_ids[rows_old[better]] = classes[n:][better]
-        if self.vote and frame.keep is not None:
-            seen = frame.kept_rows if frame.kept_rows is not None else vmap.lookup_points(world[frame.keep])
-            self.vote_instances(vmap, vmap.instance_ids[seen[seen >= 0]])
+        if self.vote and frame.map_rows is not None:
+            self.vote_instances(vmap, vmap.instance_ids[frame.map_rows.rows])
 
     def _grow(self, n: int) -> None:
         if n > len(self.raw_class):

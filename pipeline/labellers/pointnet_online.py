@@ -61,9 +61,11 @@ class PointNetLabeller:
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         origin = frame.pose[:3, 3] if frame.pose is not None else np.zeros(3)
         world = frame.world_points if frame.world_points is not None else np.zeros((0, 3))
-        keep = frame.keep if frame.keep is not None else np.ones(len(world), bool)
-        rows = vmap.lookup_points(world[keep])
-        rows = np.unique(rows[rows >= 0]).astype(np.int64)
+        if frame.map_rows is not None:
+            rows = np.unique(frame.map_rows.rows).astype(np.int64)
+        else:
+            rows = vmap.lookup_points(world)
+            rows = np.unique(rows[rows >= 0]).astype(np.int64)
         cloud = self.cloud_rows(rows, frame.scan.stamp_s, origin)
         colors = vmap.colors[cloud] if frame.scan.colors is not None else None
         feats = point_features(vmap.positions[cloud], colors, origin, floor_height(world))
