@@ -34,9 +34,9 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
 - `stats/time_ms/<stage>` and `stats/counts/<name>`: scalars per scan; `log/...`: merges, registration
   warnings and the run summary as text log entries.
 
-The sink keeps the hooks, the time bookkeeping and the per-scan scalars; `rerun_convert` turns our types into
-Rerun archetypes, `rerun_tiles` decides which map tiles changed, `rerun_output` owns the file and viewers and
-what happens when the disk fills.
+The sink keeps the hooks and the time bookkeeping: `rerun_convert` turns our types into Rerun archetypes,
+`rerun_tiles` decides which map tiles changed, `rerun_stats` batches the per-scan scalars, and
+`rerun_output` owns the file and viewers and what happens when the disk fills.
 """
 
 from __future__ import annotations
@@ -54,12 +54,12 @@ from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks import rerun_convert as C
 from aftershock.sinks.rerun_convert import EmbeddingColors
 from aftershock.sinks.rerun_output import RecordingOutput, log_id_of, recording_id_for
+from aftershock.sinks.rerun_stats import ScanScalars
 from aftershock.sinks.rerun_tiles import MapTiles
 
 __all__ = ["EmbeddingColors", "RerunSink", "log_id_of", "recording_id_for"]
 
 TRAJECTORY_PIECE: Final = 100  # poses per trajectory strip (each scan re-logs its strip); older strips stay
-STATS_EVERY: Final = 10  # per-scan scalars go out as columns every this many scans (live plots lag by as much)
 
 
 class RerunSink(Sink):
@@ -83,10 +83,7 @@ class RerunSink(Sink):
         self._info = RunInfo(source="", source_kind="")
         self._mcap_times = False
         self._scan: Scan | None = None  # the scan whose times are currently set
-        self._stats_logged: set[str] = set()  # what was already logged for the scan `_stats_seq`
-        self._stats_seq: int | None = None
-        self._stats: dict[str, list[tuple[int, int | None, int, float]]] = {}  # entity -> (seq, log, stamp, value)
-        self._stats_scans = 0  # scans buffered in `_stats`
+        self._stats = ScanScalars()
         self._trajectory: list[np.ndarray] = []
         self._piece = 0
         self._tiles = MapTiles(cfg.map_voxel_m, cfg.map_tile_m)
@@ -141,7 +138,7 @@ class RerunSink(Sink):
             self._log_labelled(frame)
         elif stage is Stage.CLUSTERED:
             self._log_clustered(frame)
-        self._log_stats(frame)
+        self._stats.record(frame, self._mcap_times)
 
     def map_update(self, cloud: LabelledCloud, seq: int) -> None:
         self._start()
@@ -199,7 +196,7 @@ class RerunSink(Sink):
 
     def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
         self._start()
-        self._flush_stats()
+        self._stats.flush(self.rec)
         if len(final_map):
             self._log_map(final_map)
         text = (
@@ -216,7 +213,7 @@ class RerunSink(Sink):
         if self.out.closed:
             return
         if self._stats:  # scalars of scans after `end` (or without one) still reach the file
-            self._flush_stats()
+            self._stats.flush(self.rec)
         self.out.close()
 
     def _check_room(self) -> None:
@@ -232,13 +229,7 @@ class RerunSink(Sink):
 
     def _set_time(self, scan: Scan) -> None:
         self._scan = scan
-        if scan.seq != self._stats_seq:
-            self._stats_seq = scan.seq
-            self._stats_logged.clear()
-            self._stats_scans += 1
-            if self._stats_scans > STATS_EVERY:
-                self._flush_stats()
-                self._stats_scans = 1
+        self._stats.next_scan(scan.seq, self.rec)
         self.rec.set_time(L.SCAN_TIMELINE, sequence=scan.seq)
         if self._mcap_times and scan.log_time_ns is not None:
             self.rec.set_time(L.MCAP_LOG_TIMELINE, timestamp=C.datetime(scan.log_time_ns))
@@ -304,36 +295,6 @@ class RerunSink(Sink):
         radius = C.MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m * 1.5
         self.rec.log(L.LABELS, *C.labelled_points(world[one], labels.class_ids[one], labels.instance_ids[one], radius))
         self.merges(frame.merges, frame.seq)
-
-    def _log_stats(self, frame: Frame) -> None:
-        """Each scalar once per scan (the first value seen), buffered and sent as columns (`_flush_stats`)."""
-        scan = frame.scan
-        when = (scan.seq, scan.log_time_ns if self._mcap_times else None, scan.stamp_ns)
-        values = [("raw_points", f"{L.STATS_COUNTS}/raw_points", float(len(scan)))]
-        values += [(f"t:{k}", f"{L.STATS_TIME}/{k}", float(v)) for k, v in frame.timings_ms.items()]
-        values += [(f"c:{k}", f"{L.STATS_COUNTS}/{k}", float(v)) for k, v in frame.counts.items()]
-        for key, entity, value in values:
-            if key not in self._stats_logged:
-                self._stats_logged.add(key)
-                self._stats.setdefault(entity, []).append((*when, value))
-
-    def _flush_stats(self) -> None:
-        """One `send_columns` per series for the buffered scans instead of one `log` per value and scan."""
-        for entity, rows in self._stats.items():
-            for mcap in (True, False):  # rows on the MCAP timelines, then rows on the sensor time
-                sel = [r for r in rows if (r[1] is not None) == mcap]
-                if not sel:
-                    continue
-                seq, log_ns, stamp_ns, value = (np.array(c) for c in zip(*sel, strict=True))
-                stamps = stamp_ns.astype("datetime64[ns]")
-                indexes = [rr.TimeColumn(L.SCAN_TIMELINE, sequence=seq)]
-                if mcap:
-                    indexes.append(rr.TimeColumn(L.MCAP_LOG_TIMELINE, timestamp=log_ns.astype("datetime64[ns]")))
-                    indexes.append(rr.TimeColumn(L.MCAP_STAMP_TIMELINE, timestamp=stamps))
-                else:
-                    indexes.append(rr.TimeColumn(L.SENSOR_TIMELINE, timestamp=stamps))
-                self.rec.send_columns(entity, indexes=indexes, columns=rr.Scalars.columns(scalars=value))
-        self._stats.clear()
 
     def _log_map(self, cloud: LabelledCloud) -> None:
         """Re-log only the map tiles whose content changed since the last update (`rerun_tiles`)."""
