@@ -23,8 +23,7 @@ import numpy as np
 
 from aftershock.pipeline.classes import SemanticClass
 from aftershock.pipeline.config import Config
-from aftershock.pipeline.geometry import group_pca
-from aftershock.pipeline.register import norms
+from aftershock.pipeline.geometry import group_pca, norms
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import VoxelMap
 
