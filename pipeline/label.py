@@ -1,8 +1,9 @@
 """Labelling stage: range-filter each registered scan, open new voxels in the map, let a labeller label them.
 
-A labeller is pluggable (`Labeller` protocol); `make_labeller(name, cfg)` builds one by name. Each lives in
-its own module `pipeline.labellers.<module>` exposing `create(cfg: Config) -> Labeller`, imported only
-when asked for, so a labeller that needs weights costs nothing until it is chosen.
+A labeller is pluggable (`Labeller` protocol); `make_labeller(name, cfg, environment)` builds one by name. Each
+lives in its own module `pipeline.labellers.<module>` exposing `create(cfg, name, environment) -> Labeller`
+(a module may serve several names), imported only when asked for, so a labeller that needs weights costs
+nothing until it is chosen.
 """
 
 from __future__ import annotations
@@ -47,9 +48,15 @@ class Labeller(Protocol):
         """Per pair of (neighbouring) voxel rows: True where they should join the same instance."""
         ...
 
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """After instances merged (the end of a run): their voxels may take the class the instance votes for
+        (a labeller without instance votes does nothing)."""
+        ...
 
-def make_labeller(name: str, cfg: Config) -> Labeller:
-    """The labeller called `name`; InputError if unknown, not built, or its weights are missing."""
+
+def make_labeller(name: str, cfg: Config, environment: Environment) -> Labeller:
+    """The labeller called `name` for this environment (indoor or outdoor, decided by the caller); InputError
+    if unknown, not built, or its weights are missing."""
     module_name = LABELLERS.get(name)
     if module_name is None:
         raise InputError(f"unknown labeller {name!r}; choose one of: {', '.join(LABELLERS)}")
@@ -60,10 +67,8 @@ def make_labeller(name: str, cfg: Config) -> Labeller:
         if exc.name == full:
             raise InputError(f"labeller {name!r} is not available in this build") from None
         raise
-    if cfg.label.labeller != name:  # a module serving several names reads which one from the config
-        cfg = cfg.model_copy(update={"label": cfg.label.model_copy(update={"labeller": name})})
     try:
-        labeller = module.create(cfg)
+        labeller = module.create(cfg, name, environment)
     except FileNotFoundError as exc:
         raise InputError(
             f"labeller {name!r}: weights not found ({exc.filename or exc}); see `aftershock train --help`"

@@ -58,6 +58,7 @@ class MCPNetLabeller:
     def __init__(
         self,
         cfg: Config,
+        link_beta: float,
         weights: str | Path | None = None,
         kind: str = "mcpnet",
         weights_no_color: str | Path | None = None,
@@ -82,8 +83,7 @@ class MCPNetLabeller:
         self.embedding_dim = self.net.embed_dim
         self.cell_m = cfg.map.context_cell_m
         self.num = cfg.map.context_points
-        outdoor = cfg.label.environment is Environment.OUTDOOR
-        self.beta = cfg.cluster.beta_outdoor if outdoor else cfg.cluster.beta_indoor
+        self.beta = link_beta  # embeddings this similar link two voxels (the cluster section's β for the site)
         self.relabel = cfg.label.relabel_old_voxels
         self.vote = cfg.label.instance_vote
         self.raw_class = np.zeros(0, np.int64)  # the network's own class per map row, before instance votes
@@ -226,8 +226,9 @@ class MCPNetLabeller:
         return emb
 
 
-def create(cfg: Config) -> MCPNetLabeller:
-    """MCPNet, or the same network without context pooling when `label.labeller` is "mcpnet-nocontext"."""
-    if cfg.label.labeller == NO_CONTEXT:
-        return MCPNetLabeller(cfg, kind=NO_CONTEXT)
-    return MCPNetLabeller(cfg, weights=cfg.label.weights, weights_no_color=cfg.label.weights_no_color)
+def create(cfg: Config, name: str = NAME, environment: Environment = Environment.INDOOR) -> MCPNetLabeller:
+    """MCPNet, or the same network without context pooling for the name "mcpnet-nocontext"."""
+    beta = cfg.cluster.link_beta(environment)
+    if name == NO_CONTEXT:
+        return MCPNetLabeller(cfg, beta, kind=NO_CONTEXT)
+    return MCPNetLabeller(cfg, beta, weights=cfg.label.weights, weights_no_color=cfg.label.weights_no_color)

@@ -22,7 +22,7 @@ from typing import Final
 import numpy as np
 
 from aftershock.pipeline.classes import SemanticClass
-from aftershock.pipeline.config import Config
+from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.geometry import group_pca, norms
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -76,6 +76,9 @@ class RegionGrowingLabeller:
         cb = vmap.colors[rows_b].astype(np.float32) / 255.0
         return ok & (norms(ca - cb) < self.max_color)
 
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """The rule classes stay per voxel (no instance votes)."""
 
-def create(cfg: Config) -> RegionGrowingLabeller:
+
+def create(cfg: Config, name: str = NAME, environment: Environment = Environment.INDOOR) -> RegionGrowingLabeller:
     return RegionGrowingLabeller(cfg)

@@ -84,12 +84,12 @@ def fpfh_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> 
 
 def mcpnet_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:
     """Components over MCPNet's embeddings of the voxel points (the clustering stage's rule, β indoor)."""
-    from aftershock.pipeline.config import Config
+    from aftershock.pipeline.config import Config, Environment
     from aftershock.pipeline.labellers.mcpnet import create
 
     vox = cloud.select(vc.first_point)
     vox.points = vc.points
-    embeddings = create(Config()).embed_cloud(vox)
+    embeddings = create(Config(), environment=Environment.INDOOR).embed_cloud(vox)
     return similarity_components(vc, np.asarray(embeddings, np.float64), cfg.mcpnet_similarity)
 
 
