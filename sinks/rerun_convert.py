@@ -11,7 +11,7 @@ import rerun as rr
 
 from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNLABELLED, UNLABELLED_COLOR, instance_colors
 from aftershock.pipeline.geometry import voxel_downsample
-from aftershock.pipeline.types import Crack, LabelledCloud, Scan, Story
+from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Scan, Story
 
 DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)
 FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
@@ -158,6 +158,35 @@ def refined_points(cloud: LabelledCloud) -> list:
     colors = instance_colors_of(cloud.instance_ids) if cloud.instance_ids is not None else cloud.colors
     extra = [rr.AnyValues(instance_id=cloud.instance_ids)] if cloud.instance_ids is not None else []
     return [rr.Points3D(cloud.points, colors=colors, class_ids=cloud.class_ids, radii=SCAN_RADIUS), *extra]
+
+
+def growth_points(cloud: LabelledCloud, inliers: np.ndarray, neighbours: np.ndarray) -> tuple[rr.Points3D, rr.Points3D]:
+    """One step of LRGNet's growth: the region's inliers and the neighbours it may take next."""
+    radius = rr.Radius.ui_points(2.5)
+    return (
+        rr.Points3D(cloud.points[inliers], colors=GROWTH_INLIER_COLOR, radii=radius),
+        rr.Points3D(cloud.points[neighbours], colors=GROWTH_NEIGHBOUR_COLOR, radii=radius),
+    )
+
+
+def run_text(info: RunInfo) -> str:
+    """What the run reads, in one line of the text log."""
+    what = f"source {info.source} ({info.source_kind}"
+    what += f", topic {info.topic})" if info.topic else ")"
+    return what + f", {info.environment}, labeller {info.labeller or 'none'}"
+
+
+def summary_text(summary: RunSummary) -> str:
+    """The run summary in one line of the text log."""
+    text = (
+        f"{summary.scans} scans, {summary.points} points, {summary.map_voxels} map voxels, "
+        f"{summary.instances} instances, {summary.scans_per_second:.2f} scans/s"
+    )
+    if summary.registration_failures:
+        text += f", registration flagged at scans {summary.registration_failures}"
+    if summary.interrupted:
+        text += " (interrupted)"
+    return text
 
 
 def crack_points(cloud: LabelledCloud) -> list:

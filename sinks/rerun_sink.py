@@ -110,10 +110,7 @@ class RerunSink(Sink):
         self._start()
         self._mcap_times = info.source_kind == "mcap"
         self.rec.send_recording_name(Path(info.source).name or info.source)
-        what = f"source {info.source} ({info.source_kind}"
-        what += f", topic {info.topic})" if info.topic else ")"
-        what += f", {info.environment}, labeller {info.labeller or 'none'}"
-        self.rec.log(f"{L.LOG}/run", rr.TextLog(what, level="INFO"), static=True)
+        self.rec.log(f"{L.LOG}/run", rr.TextLog(C.run_text(info), level="INFO"), static=True)
 
     def _start(self) -> None:
         """Open the outputs (in `begin`, or with the first data when a command has no run to begin): a run
@@ -154,14 +151,9 @@ class RerunSink(Sink):
         self.rec.reset_time()
         for i, (inliers, neighbours) in enumerate(steps):
             self.rec.set_time(L.LRGNET_STEP_TIMELINE, sequence=i)
-            self.rec.log(
-                f"{L.REFINED_GROWTH}/inliers",
-                rr.Points3D(cloud.points[inliers], colors=C.GROWTH_INLIER_COLOR, radii=rr.Radius.ui_points(2.5)),
-            )
-            self.rec.log(
-                f"{L.REFINED_GROWTH}/neighbours",
-                rr.Points3D(cloud.points[neighbours], colors=C.GROWTH_NEIGHBOUR_COLOR, radii=rr.Radius.ui_points(2.5)),
-            )
+            inlier_points, neighbour_points = C.growth_points(cloud, inliers, neighbours)
+            self.rec.log(f"{L.REFINED_GROWTH}/inliers", inlier_points)
+            self.rec.log(f"{L.REFINED_GROWTH}/neighbours", neighbour_points)
             self.rec.log(
                 f"{L.LOG}/lrgnet",
                 rr.TextLog(f"step {i}: {len(inliers)} inliers, {len(neighbours)} neighbours", level="DEBUG"),
@@ -199,15 +191,7 @@ class RerunSink(Sink):
         self._stats.flush(self.rec)
         if len(final_map):
             self._log_map(final_map)
-        text = (
-            f"{summary.scans} scans, {summary.points} points, {summary.map_voxels} map voxels, "
-            f"{summary.instances} instances, {summary.scans_per_second:.2f} scans/s"
-        )
-        if summary.registration_failures:
-            text += f", registration flagged at scans {summary.registration_failures}"
-        if summary.interrupted:
-            text += " (interrupted)"
-        self.rec.log(f"{L.LOG}/summary", rr.TextLog(text, level="INFO"))
+        self.rec.log(f"{L.LOG}/summary", rr.TextLog(C.summary_text(summary), level="INFO"))
 
     def close(self) -> None:
         if self.out.closed:

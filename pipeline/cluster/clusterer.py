@@ -69,7 +69,7 @@ class InstanceClusterer:
         return merges
 
     def _assign(self, vmap: VoxelMap, new_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Instance ids of the new rows (see the module docstring); returns every neighbouring voxel pair
+        """Instance ids of the new rows (see the package docstring); returns every neighbouring voxel pair
         (new row, other row) and whether the labeller linked it."""
         k = len(new_rows)
         nb = vmap.neighbour_rows(new_rows, self.reach)
