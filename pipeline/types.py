@@ -113,6 +113,9 @@ class MapRows:
     new_rows: np.ndarray  # rows the scan opened, in first-point order
     first_points: np.ndarray  # indices into the scan of the first kept point of each voxel the scan fell in
 
+    def __post_init__(self) -> None:
+        _check_len("rows", self.rows, len(self.points))
+
     @staticmethod
     def empty() -> MapRows:
         none = np.zeros(0, np.int64)
