@@ -50,10 +50,10 @@ class RegionGrowingLabeller:
     name = NAME
     embedding_dim = 0
 
-    def __init__(self, cfg: Config) -> None:
-        self.min_cos = float(np.cos(np.deg2rad(cfg.cluster.normal_angle_deg)))
-        self.max_color = float(cfg.cluster.color_distance)
-        self.radius_m = (NORMAL_RADIUS_VOXELS + 0.5) * cfg.map.voxel_size_m
+    def __init__(self, normal_angle_deg: float, color_distance: float, voxel_size_m: float) -> None:
+        self.min_cos = float(np.cos(np.deg2rad(normal_angle_deg)))
+        self.max_color = float(color_distance)
+        self.radius_m = (NORMAL_RADIUS_VOXELS + 0.5) * voxel_size_m
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         nb = vmap.neighbour_rows(new_rows, NORMAL_RADIUS_VOXELS)
@@ -81,4 +81,4 @@ class RegionGrowingLabeller:
 
 
 def create(cfg: Config, name: str = NAME, environment: Environment = Environment.INDOOR) -> RegionGrowingLabeller:
-    return RegionGrowingLabeller(cfg)
+    return RegionGrowingLabeller(cfg.cluster.normal_angle_deg, cfg.cluster.color_distance, cfg.map.voxel_size_m)
