@@ -285,6 +285,19 @@ class CrackConfig(_Section):
     max_spacing_m: Positive = 0.02  # coarser clouds are refused as too sparse to measure cracks
     fit_points: Count = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
     weights: str | None = None  # CrackEmbed weights; None = the shipped ones
+    # detector "ridge" (damage/ridge.py): thin dark ridges on each face's orthoimages against the face's background;
+    # chosen in bench_cracks (simulated elements and leave-one-out on the real ones; ridge_high on simulated intact
+    # elements only)
+    ridge_scales_m: tuple[float, ...] = (0.004, 0.008, 0.016, 0.032)
+    ridge_channels: tuple[str, ...] = ("grey",)
+    ridge_high: Positive = 6.0  # seed score in robust sigmas of the face's own line contrast
+    ridge_low_ratio: Fraction = 0.5
+    ridge_min_length_m: NonNegative = 0.1
+    ridge_min_elongation: NonNegative = 4.0
+    ridge_line_ratio: Fraction = 0.5  # |smaller| / larger Hessian eigenvalue of a line, at most
+    ridge_max_chroma: NonNegative = 8.0  # a region this far from the face's hue (% chromaticity) is paint; 0 = off
+    ridge_straight_width_m: NonNegative = 0.02  # thinner straight axis-aligned strips are joints/marks; 0 = off
+    ridge_member_z: NonNegative = 1.0  # a region's crack points: darker than around by this many robust sigmas
     element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...
     element_radius_m: Positive = 0.1  # ... joining neighbours within this distance ...
     element_angle_deg: Angle = 20.0  # ... whose normals differ by less than this ...
