@@ -51,7 +51,8 @@ def register(app: typer.Typer) -> None:
         ),
         detector: str | None = typer.Option(
             None,
-            help="isolation-forest | robust-covariance | one-class-svm | lof | kmeans | gmm | mean-shift.",
+            help="ridge (default) | isolation-forest | robust-covariance | one-class-svm | lof | kmeans | gmm | "
+            "mean-shift.",
         ),
         resolution: float | None = typer.Option(
             None, help="Evaluation grid in metres (default: 1 mm for columns/walls, 1 cm for slabs)."
@@ -105,8 +106,10 @@ def register(app: typer.Typer) -> None:
         for c in result.cracks:
             x, y, z = c.center
             flag = " SEVERE" if c.severe else ""
-            width = f"{c.width_m * 1000:.1f} mm" + ("" if c.width_resolved else " (≤ spacing)")
-            width += f" (widest {c.max_width_m * 1000:.1f} mm)"
+            if c.width_resolved:
+                width = f"{c.width_m * 1000:.1f} mm (widest {c.max_width_m * 1000:.1f} mm)"
+            else:
+                width = f"not measurable (present; the scan resolves {c.resolvable_m * 1000:.1f} mm here)"
             print(
                 f"  crack {c.instance_id:3d} at ({x:.3f}, {y:.3f}, {z:.3f}) length {c.length_m:.3f} m "
                 f"width {width} points {c.num_points}{flag}"

@@ -142,12 +142,18 @@ def _round(x: float) -> float | None:
     return None if not np.isfinite(x) else round(float(x), 4)
 
 
+WIDTH_NOT_MEASURABLE: Final = "present, width not measurable: narrower than the scan resolves here"
+
+
 def crack_json(c: Crack) -> dict[str, Any]:
+    """One crack; a width below what the scan resolves there is null, with the reason and the limit."""
     return {
         "id": c.instance_id,
         "position": [round(float(v), 4) for v in c.center],
         "length_m": round(c.length_m, 4),
-        "width_m": round(c.width_m, 4),
+        "width_m": round(c.width_m, 4) if c.width_resolved else None,
+        "width_reason": None if c.width_resolved else WIDTH_NOT_MEASURABLE,
+        "resolvable_mm": _round(c.resolvable_m * 1000),
         "max_width_m": _round(c.max_width_m),
         "rectangle_width_m": _round(c.rect_width_m),
         "area_width_m": _round(c.area_width_m),

@@ -22,7 +22,7 @@ from aftershock.pipeline.damage.faces import Ortho
 from aftershock.pipeline.types import LabelledCloud
 
 _MAD_TO_SIGMA: Final = 1.4826
-_COVER: Final = 0.3  # a pixel is on the face when the smoothed point cover there reaches this
+_COVER: Final = 0.5  # a pixel is on the face when its point cover, smoothed over 1.5 pixels, reaches this
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,7 +62,8 @@ def line_contrast(image: np.ndarray, has: np.ndarray, sigma_px: float, max_line_
     the centre's, across the Hessian's direction; 0 where a side falls off the face or the spot is not line-like.
     """
     s = _smooth(image, has, sigma_px)
-    cover = ndimage.gaussian_filter(has.astype(np.float64), max(sigma_px, 1.0), mode="constant") >= _COVER
+    # on the face: points within a couple of pixels (a side that falls into a hole or off the face is no side)
+    cover = ndimage.gaussian_filter(has.astype(np.float64), 1.5, mode="constant") >= _COVER
     syy, syx = np.gradient(np.gradient(s, axis=0), axis=(0, 1))
     sxx = np.gradient(np.gradient(s, axis=1), axis=1)
     half_tr = 0.5 * (syy + sxx)
@@ -81,7 +82,11 @@ def line_contrast(image: np.ndarray, has: np.ndarray, sigma_px: float, max_line_
     for sign in (1.0, -1.0):
         coords = np.stack([rr + sign * d * er, cc + sign * d * ec])
         value = ndimage.map_coordinates(s, coords, order=1, mode="nearest")
-        inside = ndimage.map_coordinates(cover.astype(np.float64), coords, order=0, mode="constant", cval=0.0) > 0
+        # the side and the surface beyond it are on the face: at the face's rim one side is an extrapolation
+        beyond = np.stack([rr + sign * 1.5 * d * er, cc + sign * 1.5 * d * ec])
+        inside = np.ones(s.shape, bool)
+        for at in (coords, beyond):
+            inside &= ndimage.map_coordinates(cover.astype(np.float64), at, order=0, mode="constant", cval=0.0) > 0
         sides.append(np.where(inside, value, np.nan))
     contrast = np.fmin(sides[0], sides[1]) - s
     linear = (big > 0) & (np.abs(small) <= max_line_ratio * big)
@@ -142,12 +147,27 @@ def crack_pixels(image: np.ndarray, ortho: Ortho, regions: np.ndarray, sigma_px:
     inside = ndimage.binary_dilation(regions > 0, iterations=2)
     img = np.nan_to_num(image)
     background = _smooth(img, has & ~inside, sigma_px)
-    dark = background - _smooth(img, has, 0.7)
+    dark = background - _smooth(img, has, 0.5)
     ref = dark[has & ~inside]
     med = float(np.median(ref)) if len(ref) else 0.0
     mad = _MAD_TO_SIGMA * float(np.median(np.abs(ref - med))) if len(ref) else 1.0
     z = (dark - med) / max(mad, 1e-12)
-    return np.where((regions > 0) & (z >= min_z), regions, 0)
+    # the opening at half the region's own depth (its 90th percentile of darkness): the full width at half
+    # maximum, the usual width of a valley whatever its contrast
+    k = int(regions.max(initial=0))
+    on = (regions > 0) & has
+    core = np.zeros(k + 1)
+    if on.any():
+        lab, val = regions[on], z[on]
+        order = np.lexsort((val, lab))
+        lab, val = lab[order], val[order]
+        starts = np.searchsorted(lab, np.arange(k + 1))
+        ends = np.searchsorted(lab, np.arange(k + 1), side="right")
+        filled = ends > starts
+        pick = starts + ((ends - starts - 1) * 0.9).astype(np.int64)
+        core[filled] = val[pick[filled]]
+    level = np.maximum(min_z, 0.5 * core)
+    return np.where(on & (z >= level[regions]), regions, 0)
 
 
 def ridge_regions(score: np.ndarray, ortho: Ortho, settings: RidgeSettings) -> np.ndarray:
@@ -162,9 +182,30 @@ def ridge_regions(score: np.ndarray, ortho: Ortho, settings: RidgeSettings) -> n
     labels, k = ndimage.label(low, structure=np.ones((3, 3)))
     if k == 0:
         return labels
+    seeds = low & (score >= settings.high)
+    if settings.straight_width_m > 0:  # a joint seeds nothing: what it touches is not grown from it
+        seed_labels, ks = ndimage.label(seeds, structure=np.ones((3, 3)))
+        _, straight = _shape(seed_labels, ks, pixel_m, settings)
+        seeds &= ~straight[seed_labels]
     seeded = np.zeros(k + 1, bool)
-    seeded[np.unique(labels[score >= settings.high])] = True
+    seeded[np.unique(labels[seeds])] = True
     seeded[0] = False
+    keep = seeded & shape_keep(labels, k, pixel_m, settings)
+    new = np.zeros(k + 1, np.int64)
+    new[keep] = np.arange(1, int(keep.sum()) + 1)
+    return new[labels] * has
+
+
+def shape_keep(labels: np.ndarray, k: int, pixel_m: float, settings: RidgeSettings) -> np.ndarray:
+    """Per label 0..k: long enough, elongated enough, and not a thin straight strip along a face axis (see
+    `ridge_regions`); label 0 is never kept."""
+    keep, straight = _shape(labels, k, pixel_m, settings)
+    return keep & ~straight
+
+
+def _shape(labels: np.ndarray, k: int, pixel_m: float, settings: RidgeSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Per label 0..k: long and elongated enough (the first), a thin straight strip along a face axis (the
+    second; never with `straight_width_m` 0)."""
     r, c = np.nonzero(labels)
     lab = labels[r, c]
     n = np.bincount(lab, minlength=k + 1).astype(np.float64)
@@ -177,21 +218,19 @@ def ridge_regions(score: np.ndarray, ortho: Ortho, settings: RidgeSettings) -> n
     root = np.sqrt(0.25 * (crr - ccc) ** 2 + crc**2)
     major = 0.5 * (crr + ccc) + root
     minor = np.clip(0.5 * (crr + ccc) - root, 0.0, None)
-    # a straight strip of length L has variance L^2 / 12 along it; a wandering crack's bends add to the minor
-    # axis, which is why the length is read from both: the extent along the major axis is a lower bound
-    length = np.sqrt(12.0 * major) + 1.0
+    length = np.sqrt(12.0 * major) + 1.0  # a strip of length L spreads L^2 / 12 along it
     width = n / length
-    keep = seeded & (length * pixel_m >= settings.min_length_m) & (length >= settings.min_elongation * width)
+    keep = (n > 0) & (length * pixel_m >= settings.min_length_m) & (length >= settings.min_elongation * width)
+    keep[0] = False
+    strip = np.zeros(k + 1, bool)
     if settings.straight_width_m > 0:
-        # a straight strip of width w spreads w^2 / 12 across its axis: nothing more means no bend at all
+        # a straight strip of width w spreads w^2 / 12 across its axis: little more (a ragged pixel edge) = no bend
         angle = np.degrees(np.arctan2(2 * crc, crr - ccc) / 2) % 90.0
         aligned = np.minimum(angle, 90.0 - angle) <= 5.0
-        straight = np.sqrt(12.0 * minor) <= 1.5 * width
-        keep &= ~(aligned & straight & (width * pixel_m <= settings.straight_width_m))
-    keep[0] = False
-    new = np.zeros(k + 1, np.int64)
-    new[keep] = np.arange(1, int(keep.sum()) + 1)
-    return new[labels] * has
+        straight = np.sqrt(12.0 * minor) <= 1.5 * width + 2.0
+        strip = aligned & straight & (width * pixel_m <= settings.straight_width_m) & (length >= 3 * width)
+        strip[0] = False
+    return keep, strip
 
 
 def detect_ridges(
@@ -220,6 +259,8 @@ def detect_ridges(
             regions = ridge_regions(score, ortho, level)
             if settings.member_z > 0 and settings.channels[0] != "depth":
                 regions = crack_pixels(image, ortho, regions, max(settings.scales_m) / pixel, settings.member_z)
+                k = int(regions.max(initial=0))
+                regions = np.where(shape_keep(regions, k, pixel, level)[regions], regions, 0)
             mask[face.members] = regions[ortho.rows, ortho.cols] > 0
     return masks
 
