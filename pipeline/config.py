@@ -231,7 +231,7 @@ LRGNET_MODE_DEFAULTS: Final[dict[bool, dict[str, float]]] = {
 class CrackConfig(_Section):
     resolution_m: Positive | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
     features: str = "shade+crackembed"  # best balance of real elements and unseen simulated ones (bench_cracks)
-    detector: str = "isolation-forest"
+    detector: str = "ridge"  # orthoimage ridges (issue 30); the point-feature detectors remain options
     neighbourhood_m: Positive = 0.01
     shade_cell_m: NonNegative = (
         0.0  # shade: darkness against the mean of the 3 x 3 x 3 block of these voxels (0 = median)
@@ -295,7 +295,7 @@ class CrackConfig(_Section):
     ridge_min_length_m: NonNegative = 0.1
     ridge_min_elongation: NonNegative = 4.0
     ridge_line_ratio: Fraction = 0.5  # |smaller| / larger Hessian eigenvalue of a line, at most
-    ridge_max_chroma: NonNegative = 8.0  # a region this far from the face's hue (% chromaticity) is paint; 0 = off
+    ridge_max_chroma: NonNegative = 4.5  # a region this far from the face's hue (% chromaticity) is paint; 0 = off
     ridge_straight_width_m: NonNegative = 0.02  # thinner straight axis-aligned strips are joints/marks; 0 = off
     ridge_member_z: NonNegative = 1.0  # a region's crack points: darker than around by this many robust sigmas
     element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...

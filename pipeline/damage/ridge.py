@@ -2,7 +2,7 @@
 
 At each scale the image is smoothed by normalised convolution (holes and the face's edges do not pull it), the
 Hessian gives the direction across a line, and the line's contrast is how much darker (or deeper) the centre is
-than *both* sides at twice the scale: an edge of a stain, of shade or of the face is darker than one side only,
+than *both* sides at twice the scale, which must be alike: an edge of a stain, of shade or of the face is a step,
 and a blob (a pit, a spot) is dark in every direction, so its Hessian is not line-like. Each contrast is divided
 by the robust spread of the same contrast over the face (a crack differs from its surroundings more than the
 surface varies), the maximum over scales and the mean over channels is the pixel's score, and hysteresis (seeds
@@ -22,6 +22,9 @@ from aftershock.pipeline.damage.faces import Ortho
 from aftershock.pipeline.types import LabelledCloud
 
 _MAD_TO_SIGMA: Final = 1.4826
+# the median nearest-neighbour distance of a scan underestimates its pitch (jitter brings neighbours closer): an
+# image at that pitch is half empty; a quarter more fills most pixels once
+PIXEL_SPACINGS: Final = 1.25
 _COVER: Final = 0.5  # a pixel is on the face when its point cover, smoothed over 1.5 pixels, reaches this
 
 
@@ -89,6 +92,9 @@ def line_contrast(image: np.ndarray, has: np.ndarray, sigma_px: float, max_line_
             inside &= ndimage.map_coordinates(cover.astype(np.float64), at, order=0, mode="constant", cval=0.0) > 0
         sides.append(np.where(inside, value, np.nan))
     contrast = np.fmin(sides[0], sides[1]) - s
+    # both sides alike: a line is deeper than its sides differ; a step (an edge of shade or of a stain, a wedge of
+    # shadow against the face's rim) is not
+    contrast = np.where(np.abs(sides[0] - sides[1]) <= 2.0 * contrast, contrast, 0.0)
     linear = (big > 0) & (np.abs(small) <= max_line_ratio * big)
     ok = cover & np.isfinite(contrast) & linear
     return np.where(ok, np.nan_to_num(contrast), 0.0)
@@ -249,7 +255,7 @@ def detect_ridges(
 
     levels = highs if highs is not None else (settings.high,)
     masks = [np.zeros(len(points), bool) for _ in levels]
-    pixel = spacing_m
+    pixel = PIXEL_SPACINGS * spacing_m
     for face in fit_faces(points, spacing_m, seed):  # a handful of faces per element
         ortho = unroll(face, points, grey, intensity, pixel, max(settings.scales_m) * 4, chroma)
         score = ridge_score(ortho, settings)
