@@ -297,6 +297,7 @@ class CrackConfig(_Section):
     ridge_line_ratio: Fraction = 0.5  # |smaller| / larger Hessian eigenvalue of a line, at most
     ridge_max_chroma: NonNegative = 4.5  # a region this far from the face's hue (% chromaticity) is paint; 0 = off
     ridge_straight_width_m: NonNegative = 0.02  # thinner straight axis-aligned strips are joints/marks; 0 = off
+    ridge_rim: bool = False  # at a face's rim (one side off the face) the other side alone is the reference
     ridge_member_z: NonNegative = 1.0  # a region's crack points: darker than around by this many robust sigmas
     element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...
     element_radius_m: Positive = 0.1  # ... joining neighbours within this distance ...

@@ -45,16 +45,19 @@ PUBLISHED: Final = {
     "column4": "F1 .26 (raw RGB .22)",
 }
 PUBLISHED_WIDTH: Final = "width error 4 mm (study, mean of its elements)"
-_SCALES_FINE: Final = (0.004, 0.008, 0.016, 0.032)
 _SCALES_COARSE: Final = (0.004, 0.008, 0.016, 0.032, 0.064)
+# round C: grey on 4-64 mm; the joint rule (thin straight axis-aligned strips are no crack) on or off, the rim rule
+# (one-sided contrast where the other side is off the face) off or on, the crack-pixel test off or on
 CANDIDATES: Final[dict[str, dict[str, Any]]] = {
-    f"{ch_name}, {sc_name}, member {mz:g}": {
-        "ridge_channels": ch,
-        "ridge_scales_m": sc,
+    f"joint {'on' if jw else 'off'}, rim {'on' if rim else 'off'}, member {mz:g}": {
+        "ridge_channels": ("grey",),
+        "ridge_scales_m": _SCALES_COARSE,
+        "ridge_straight_width_m": jw,
+        "ridge_rim": rim,
         "ridge_member_z": mz,
     }
-    for ch_name, ch in (("grey", ("grey",)), ("grey+depth", ("grey", "depth")))
-    for sc_name, sc in (("4-32 mm", _SCALES_FINE), ("4-64 mm", _SCALES_COARSE))
+    for jw in (0.02, 0.0)
+    for rim in (False, True)
     for mz in (0.0, 1.0)
 }
 HIGH_GRID: Final = tuple(float(x) for x in np.arange(2.0, 12.01, 0.5))

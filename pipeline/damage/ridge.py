@@ -42,6 +42,7 @@ class RidgeSettings:
     max_chroma: float = 0.0  # a region whose hue lies this far (% chromaticity) from the face's is paint (0: off)
     straight_width_m: float = 0.0  # a thin straight strip along a face axis no wider than this is a joint (0: off)
     member_z: float = 0.0  # a region's pixels darker than the surface around by this many robust sigmas are crack
+    rim: bool = False  # at the face's rim, where one side is off the face, compare with the other side alone
 
 
 def _smooth(image: np.ndarray, has: np.ndarray, sigma: float) -> np.ndarray:
@@ -60,7 +61,9 @@ def _robust_z(x: np.ndarray, on: np.ndarray) -> np.ndarray:
     return np.where(on, (x - med) / max(mad, 1e-12), 0.0)
 
 
-def line_contrast(image: np.ndarray, has: np.ndarray, sigma_px: float, max_line_ratio: float) -> np.ndarray:
+def line_contrast(
+    image: np.ndarray, has: np.ndarray, sigma_px: float, max_line_ratio: float, rim: bool = False
+) -> np.ndarray:
     """Contrast (H, W) of a dark line at scale `sigma_px`: the smaller of the two sides' smoothed values less
     the centre's, across the Hessian's direction; 0 where a side falls off the face or the spot is not line-like.
     """
@@ -94,7 +97,10 @@ def line_contrast(image: np.ndarray, has: np.ndarray, sigma_px: float, max_line_
     contrast = np.fmin(sides[0], sides[1]) - s
     # both sides alike: a line is deeper than its sides differ; a step (an edge of shade or of a stain, a wedge of
     # shadow against the face's rim) is not
-    contrast = np.where(np.abs(sides[0] - sides[1]) <= 2.0 * contrast, contrast, 0.0)
+    contrast = np.where(np.abs(sides[0] - sides[1]) <= 2.0 * contrast, contrast, np.nan)
+    if rim:  # at the face's rim (a column's spalled corner) only one side is there: it alone is the reference
+        one = np.isfinite(sides[0]) != np.isfinite(sides[1])
+        contrast = np.where(one, np.fmax(sides[0], sides[1]) - s, contrast)
     linear = (big > 0) & (np.abs(small) <= max_line_ratio * big)
     ok = cover & np.isfinite(contrast) & linear
     return np.where(ok, np.nan_to_num(contrast), 0.0)
@@ -126,7 +132,7 @@ def ridge_score(ortho: Ortho, settings: RidgeSettings) -> np.ndarray:
         best = np.zeros(has.shape)
         for scale in settings.scales_m:
             sigma = max(scale / ortho.pixel_m, 1.0)
-            c = line_contrast(np.nan_to_num(image), known, sigma, settings.max_line_ratio)
+            c = line_contrast(np.nan_to_num(image), known, sigma, settings.max_line_ratio, settings.rim)
             best = np.maximum(best, _robust_z(c, known & (c != 0)) * (c > 0))
         total += best
         used += 1
@@ -283,6 +289,7 @@ def settings_of(cfg: CrackConfig) -> RidgeSettings:
         max_chroma=cfg.ridge_max_chroma,
         straight_width_m=cfg.ridge_straight_width_m,
         member_z=cfg.ridge_member_z,
+        rim=cfg.ridge_rim,
     )
 
 
