@@ -117,12 +117,18 @@ def register(app: typer.Typer) -> None:
         if result.scores is not None:
             s = result.scores
             print(f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f}")
-            print(
-                f"main true crack against its reported crack: length {s.found_length_m:.3f} / "
-                f"{s.true_length_m:.3f} m (error {s.length_error_m:.3f}), width {s.found_width_m * 1000:.1f} / "
-                f"{s.true_width_m * 1000:.1f} mm (error {s.width_error_m * 1000:.1f})"
-            )
-            print(
-                f"{s.found_cracks} of {s.true_cracks} true cracks found; median error length "
-                f"{s.median_length_error_m:.3f} m, width {s.median_width_error_m * 1000:.1f} mm"
-            )
+            if np.isfinite(s.found_length_m):
+                print(
+                    f"main true crack against its reported crack: length {s.found_length_m:.3f} / "
+                    f"{s.true_length_m:.3f} m (error {s.length_error_m:.3f}), width {s.found_width_m * 1000:.1f} / "
+                    f"{s.true_width_m * 1000:.1f} mm (error {s.width_error_m * 1000:.1f})"
+                )
+            elif np.isfinite(s.true_length_m):
+                print(f"main true crack ({s.true_length_m:.3f} m long): not found")
+            found = f"{s.found_cracks} of {s.true_cracks} true cracks found"
+            if s.found_cracks:
+                found += (
+                    f"; median error length {s.median_length_error_m:.3f} m, "
+                    f"width {s.median_width_error_m * 1000:.1f} mm"
+                )
+            print(found)
