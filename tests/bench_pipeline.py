@@ -56,9 +56,9 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
 _CPU_TIMERS: Final = textwrap.dedent(
     """
     import time
-    import aftershock.pipeline.cluster, aftershock.pipeline.label, aftershock.pipeline.register
+    import aftershock.pipeline.cluster.stage, aftershock.pipeline.label, aftershock.pipeline.register
     import aftershock.pipeline.stream
-    for _m in (aftershock.pipeline.cluster, aftershock.pipeline.label, aftershock.pipeline.register,
+    for _m in (aftershock.pipeline.cluster.stage, aftershock.pipeline.label, aftershock.pipeline.register,
                aftershock.pipeline.stream):
         _m.perf_counter = time.thread_time
     """
@@ -103,7 +103,7 @@ _WHOLE_STREAM: Final = _CPU_TIMERS + textwrap.dedent(
     """
     import json, resource, sys
     from pathlib import Path
-    from aftershock.pipeline.commands.run import make_sinks, open_scans
+    from aftershock.pipeline.mission import make_sinks, open_scans
     from aftershock.pipeline.config import load_config
     from aftershock.pipeline.stream import run_stream
 
