@@ -115,6 +115,13 @@ def test_every_docs_page_and_anchor_a_code_comment_names_exists() -> None:
     assert missing == {}
 
 
+@pytest.mark.parametrize("page", markdown_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_page_has_one_title_and_it_comes_first(page: Path) -> None:
+    levels = [len(m.group(1)) for line in prose_lines(page.read_text(encoding="utf-8")) if (m := _HEADING.match(line))]
+    assert levels[0] == 1
+    assert levels.count(1) == 1
+
+
 def test_anchors_follow_githubs_slug_rules_with_repeated_headings_numbered(tmp_path: Path) -> None:
     page = tmp_path / "page.md"
     page.write_text(
