@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
+# AFTERSHOCK_SHARED_DATA points a checkout elsewhere (a git worktree) at the shared data
+SHARED_DATA = Path(os.environ.get("AFTERSHOCK_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 os.environ.setdefault("CI", "true")  # keeps the rerun CLI from asking about analytics
 os.environ.setdefault("RERUN_ANALYTICS", "0")
