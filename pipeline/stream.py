@@ -35,6 +35,7 @@ from aftershock.pipeline.errors import InputError, OutputError
 from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
 from aftershock.pipeline.labellers.oracle import TruthStandIn
 from aftershock.pipeline.register import MIN_POINTS, guess_environment, make_registrar, register_stage
+from aftershock.pipeline.scan_stats import DistributionCheck, Reference
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
 from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan
@@ -274,6 +275,9 @@ def _run(
     labeller = choose_labeller(cfg, notice)
     info.environment = environment.value
     info.labeller = labeller.name
+    # scans unlike the networks' training scans are said once per reason (the baseline learnt nothing)
+    learned = labeller.name != FALLBACK_LABELLER and not isinstance(labeller, TruthStandIn)
+    distribution = DistributionCheck(Reference.load(), notice) if learned else None
 
     vmap = VoxelMap.from_config(cfg.map, labeller.embedding_dim)
     registrar = make_registrar(cfg.registration, environment)
@@ -304,6 +308,8 @@ def _run(
             for frame in frames:
                 summary.scans += 1
                 summary.points += len(frame.scan)
+                if distribution is not None:
+                    distribution.check(frame)
                 if not frame.registration_ok:
                     summary.registration_failures.append(frame.seq)
                 seqs.append(frame.seq)
@@ -350,6 +356,7 @@ def _run(
             summary.damaged_log = info.report.damage is not None
             summary.damage = info.report.damage
             summary.level_tilt_deg = registrar.tilt_deg
+            summary.warnings = list(distribution.warnings) if distribution is not None else []
             for sink in sinks:  # one sink that cannot write does not keep the others from finishing
                 try:
                     if seqs and last_map_seq != seqs[-1]:

@@ -221,6 +221,7 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
         "trajectory": result.trajectory.as_dict() if result.trajectory else None,
         "outputs": outputs,
+        "warnings": s.warnings,  # said once per run and reason: scans outside the networks' training data
     }
     return out
 
@@ -324,6 +325,8 @@ def print_human(result: StreamResult, outputs: dict[str, str], info: RunInfo | N
         print(f"skipped {s.skipped_messages} messages that could not be decoded (see the warnings)")
     if s.damage:
         print(f"the log ended early: {s.damage}")
+    for text in s.warnings:
+        print(f"warning: {text}")
     if "rerun" in outputs:
         if info is not None and info.raw_in_log:
             print(f"open it with its log: aftershock view {info.source} {outputs['rerun']}")
