@@ -129,7 +129,7 @@ class DistributionCheck:
                 continue
             self._said.add(reason)
             text = (
-                f"{reason} outside the training data from scan {frame.seq} on: {words} {_figure(value)}, the "
+                f"{reason} outside the training data (first at scan {frame.seq}): {words} {_figure(value)}, the "
                 f"networks were trained on {_figure(lo)}-{_figure(hi)}; its labels may be wrong"
             )
             self.warnings.append(text)

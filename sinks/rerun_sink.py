@@ -14,10 +14,12 @@ own clouds appear at the estimated pose, and the recording id carries the log's 
 (`recording_id_for`) so `aftershock view` can open both as one recording.
 
 Entities (`world/` is the site, z up, with the class table as a static annotation context)
-- `world/map/x{i}y{j}`: the accumulated labelled map (`class_ids`, `instance_id`), voxel-downsampled to
+- `world/map/x{i}y{j}`: the accumulated labelled map (`class_ids`, `instance_id`, `confidence`: the
+  labeller's probability for the class), voxel-downsampled to
   `cfg.map_voxel_m` and cut into square tiles of `cfg.map_tile_m`; at each map update (the stream sends one
   every `map_every` scans) only the tiles that changed are re-logged (only their labels when their points
-  stayed), so a long mission stays light in the file and fluid in the viewer.
+  stayed), so a long mission stays light in the file and fluid in the viewer. `world/uncertain/x{i}y{j}`:
+  the tile's voxels with a confidence under `cfg.uncertain_below`, drawn larger in UNCERTAIN_COLOR over the map.
 - `world/trajectory/p{k}`: the estimated trajectory as line strips of up to `TRAJECTORY_PIECE` poses; only the
   newest piece is re-logged per scan.
 - `world/robot`: the pose (Transform3D, world <- sensor); `world/robot/raw` the raw scan in the sensor frame,
@@ -32,7 +34,7 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
 - `world/damage/crack_points`, `world/damage/cracks` (boxes labelled with length and width),
   `world/damage/stories/s{i}` (story planes), `world/damage/drift` (drift arrows, exaggerated, labelled in mm).
 - `stats/time_ms/<stage>` and `stats/counts/<name>`: scalars per scan; `log/...`: merges, registration
-  warnings and the run summary as text log entries.
+  warnings, the run summary and its `warnings` (scans unlike the networks' training data) as text log entries.
 """
 
 from __future__ import annotations
@@ -76,6 +78,8 @@ RECORDING_ID_PREFIX: Final = "aftershock-"
 
 SCAN_RADIUS: Final = rr.Radius.ui_points(1.5)
 MAP_RADIUS_OF_VOXEL: Final = 0.2  # map points drawn with a world-space radius of this fraction of the voxel
+UNCERTAIN_RADIUS_OF_VOXEL: Final = 0.35  # uncertain voxels drawn larger, so their colour rings the class colour
+UNCERTAIN_COLOR: Final = (255, 0, 200)  # magenta: no class has it
 CRACK_RADIUS: Final = rr.Radius.ui_points(3.0)
 TRAJECTORY_COLOR: Final = (255, 210, 0)
 GROWTH_INLIER_COLOR: Final = (60, 220, 90)
@@ -257,6 +261,7 @@ class RerunSink(Sink):
         self._trajectory: list[np.ndarray] = []
         self._piece = 0
         self._tiles: dict[str, tuple[int, int, int]] = {}  # tile -> (points, position hash, label hash)
+        self._uncertain: set[str] = set()  # the uncertain-voxel entities logged and not cleared
         self._map_bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._embedding_colors = EmbeddingColors()
 
@@ -392,6 +397,8 @@ class RerunSink(Sink):
         if summary.interrupted:
             text += " (interrupted)"
         self.rec.log(f"{L.LOG}/summary", rr.TextLog(text, level="INFO"))
+        for warning in summary.warnings:  # what the run warned of once (scans unlike the training data)
+            self.rec.log(f"{L.LOG}/warnings", rr.TextLog(warning, level="WARN"))
 
     def close(self) -> None:
         if self._closed:
@@ -576,7 +583,10 @@ class RerunSink(Sink):
                 class_ids=labels.class_ids[one],
                 radii=MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m * 1.5,
             ),
-            rr.AnyValues(instance_id=labels.instance_ids[one]),
+            rr.AnyValues(
+                instance_id=labels.instance_ids[one],
+                **({"confidence": labels.scores[one]} if labels.scores is not None else {}),
+            ),
         )
         self.merges(frame.merges, frame.seq)
 
@@ -624,6 +634,7 @@ class RerunSink(Sink):
         n = len(pts)
         cls = cloud.class_ids[keep] if cloud.class_ids is not None else np.full(n, UNLABELLED, np.uint16)
         inst = cloud.instance_ids[keep] if cloud.instance_ids is not None else np.zeros(n, np.uint32)
+        conf = cloud.confidence[keep] if cloud.confidence is not None else None
         colors = cloud.colors[keep] if cloud.class_ids is None and cloud.colors is not None else None
         self._map_bounds = (pts.min(axis=0), pts.max(axis=0))
 
@@ -637,10 +648,14 @@ class RerunSink(Sink):
         zeros = np.zeros(n, np.uint16)
         where_hash = np.add.reduceat(_content_hash(pts, zeros, zeros.astype(np.uint32))[order], starts)
         label_hash = np.add.reduceat(_content_hash(pts, cls, inst)[order], starts)
+        if conf is not None:  # a confidence that moved by a percent is a change of the tile's labels
+            percent = np.round(conf * 100).astype(np.uint16)
+            label_hash += np.add.reduceat(_content_hash(pts, percent, zeros.astype(np.uint32))[order], starts)
         radius = MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m
         seen: set[str] = set()
         for t, (ix, iy) in enumerate(tiles):
-            name = f"{L.MAP}/{_tile_name(int(ix), int(iy))}"
+            tile = _tile_name(int(ix), int(iy))
+            name = f"{L.MAP}/{tile}"
             seen.add(name)
             signature = (int(counts[t]), int(where_hash[t]), int(label_hash[t]))
             before = self._tiles.get(name)
@@ -648,9 +663,11 @@ class RerunSink(Sink):
                 continue
             self._tiles[name] = signature
             sel = order[starts[t] : starts[t] + counts[t]]
+            values = {"instance_id": inst[sel]} | ({"confidence": conf[sel]} if conf is not None else {})
+            self._log_uncertain(tile, pts[sel], None if conf is None else conf[sel])
             if before is not None and before[:2] == signature[:2] and colors is None:
                 # Same points in the same order (map rows only append): only the labels are new.
-                self.rec.log(name, rr.Points3D.from_fields(class_ids=cls[sel]), rr.AnyValues(instance_id=inst[sel]))
+                self.rec.log(name, rr.Points3D.from_fields(class_ids=cls[sel]), rr.AnyValues(**values))
                 continue
             self.rec.log(
                 name,
@@ -660,11 +677,29 @@ class RerunSink(Sink):
                     colors=colors[sel] if colors is not None else None,
                     radii=radius,
                 ),
-                rr.AnyValues(instance_id=inst[sel]),
+                rr.AnyValues(**values),
             )
         for gone in set(self._tiles) - seen:
             del self._tiles[gone]
             self.rec.log(gone, rr.Clear(recursive=False))
+            self._log_uncertain(gone.rpartition("/")[2], np.zeros((0, 3)), None)
+
+    def _log_uncertain(self, tile: str, points: np.ndarray, confidence: np.ndarray | None) -> None:
+        """The tile's voxels the labeller is unsure of, over the map in one colour (cleared when none is left)."""
+        name = f"{L.UNCERTAIN}/{tile}"
+        low = np.zeros(len(points), bool) if confidence is None else confidence < self.cfg.uncertain_below
+        if low.any():
+            self._uncertain.add(name)
+            radius = UNCERTAIN_RADIUS_OF_VOXEL * self.cfg.map_voxel_m
+            assert confidence is not None
+            self.rec.log(
+                name,
+                rr.Points3D(points[low].astype(np.float32), colors=UNCERTAIN_COLOR, radii=radius),
+                rr.AnyValues(confidence=confidence[low]),
+            )
+        elif name in self._uncertain:
+            self._uncertain.discard(name)
+            self.rec.log(name, rr.Clear(recursive=False))
 
     def _log_stories(self, stories: list[Story], static: bool) -> None:
         lo, hi = self._map_bounds if self._map_bounds is not None else (np.full(3, -5.0), np.full(3, 5.0))

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from plyfile import PlyData
+from rrd_read import read_rrd
 
 from aftershock.pipeline.classes import UNLABELLED
 from aftershock.pipeline.cli import main
@@ -17,6 +18,7 @@ from aftershock.pipeline.config import Config
 from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller
 from aftershock.pipeline.types import LabelledCloud
 from aftershock.pipeline.voxel_map import VoxelMap
+from aftershock.sinks import rerun_blueprint as L
 
 MAP_PROPERTIES = ("x", "y", "z", "red", "green", "blue", "class_id", "instance_id")
 
@@ -35,6 +37,30 @@ def test_a_real_logs_exported_map_carries_a_confidence_per_point(lidar_dir: Path
     assert labelled.all() and (conf > 0).all() and (conf <= 1).all()
     # a softmax over 14 classes: never below 1/14 for the class the network chose; the votes may go lower
     assert 0.2 < float(np.median(conf)) < 1.0 and conf.std() > 0.01
+
+
+def test_the_recording_carries_confidence_beside_class_ids_and_shows_the_uncertain_voxels(
+    lidar_dir: Path, tmp_path: Path, capsys
+) -> None:
+    rrd, out = tmp_path / "run.rrd", tmp_path / "export"
+    log = str(lidar_dir / "velodyne_vlp16_indoor.mcap")
+    assert main(["run", log, "--save", str(rrd), "--export", str(out), "--quiet", "--json"]) == 0
+    capsys.readouterr()
+    rec = read_rrd(rrd)
+    tiles = sorted(rec.under(L.MAP))
+    assert tiles
+    for entity in (*tiles, L.LABELS):
+        assert {"Points3D:class_ids", "confidence"} <= rec.components(entity), entity
+    last = {e: np.asarray(rec.rows(e, "confidence")[-1]) for e in tiles}  # each tile as the run left it
+    conf = np.concatenate(list(last.values()))
+    classes = np.concatenate([np.asarray(rec.rows(e, "Points3D:class_ids")[-1]) for e in tiles])
+    assert len(conf) == len(classes) and ((conf > 0) & (conf <= 1)).all()
+    # every voxel under the threshold is drawn again, in one colour no class has, and none above it
+    threshold = Config().rerun.uncertain_below
+    shown = np.concatenate([np.asarray(rec.rows(e, "confidence")[-1]) for e in rec.under(L.UNCERTAIN)])
+    exported = read_cloud(out / "map.ply").confidence
+    assert exported is not None
+    assert len(shown) == int((exported < threshold).sum()) > 0 and (shown < threshold).all()
 
 
 def test_an_instance_vote_gives_each_voxel_the_networks_probability_of_its_new_class() -> None:
