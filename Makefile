@@ -87,6 +87,7 @@ train: setup
 	$(BIN)/aftershock train mcpnet --out $(TRAINED)/mcpnet.pt --force
 	$(BIN)/aftershock train lrgnet --out $(TRAINED)/lrgnet.pt --force
 	$(BIN)/aftershock train crackembed --out $(TRAINED)/crackembed.pt --force
+	$(BIN)/python -m aftershock.models.scan_reference_train $(TRAINED)/scan_reference.json
 	$(BIN)/python -m aftershock.models.compare_weights models/weights $(TRAINED)
 
 # The README picture: the demo recording in Rerun's web viewer, headless (needs Debian's chromium).

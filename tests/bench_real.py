@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from aftershock.pipeline.cloud_io import read_cloud
+from aftershock.pipeline.config import Config
 from aftershock.pipeline.planecheck import check_map, class_shares
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
@@ -29,6 +30,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
 REPO: Final = Path(__file__).resolve().parents[1]
 LOG_SUFFIXES: Final = (".mcap", ".pcd", ".ply", ".bag")
 EXTRA_ARGS: Final = shlex.split(os.environ.get("REAL_ARGS", ""))
+UNCERTAIN: Final = Config().rerun.uncertain_below  # the viewer's threshold for drawing a voxel as uncertain
 SHOWN_SHARE: Final = 0.01  # classes under this share of a map are left out of the printed line
 
 
@@ -75,6 +77,9 @@ def measure(log: Path, out: Path) -> dict[str, Any]:
         "floor_height_m": None if check.room.floor is None else check.room.floor.z_m - sensor_z,
         "ceiling_height_m": None if check.room.ceiling is None else check.room.ceiling.z_m - sensor_z,
         "class_shares": check.shares,
+        # the labeller's confidence where the map carries it (None: not exported, not measured)
+        "median_confidence": None if cloud.confidence is None else float(np.median(cloud.confidence)),
+        "uncertain_share": None if cloud.confidence is None else float(np.mean(cloud.confidence < UNCERTAIN)),
         "plane_classes": {
             name: class_shares(cloud.class_ids, np.concatenate([q.indices for q in planes]))
             for name, planes in (
@@ -108,6 +113,11 @@ def report(rows: list[dict[str, Any]]) -> str:
         for name, shares in r["plane_classes"].items():
             top = ", ".join(f"{k} {v:.1%}" for k, v in shares.items() if v >= SHOWN_SHARE)
             lines.append(f"  {name} plane points: {top}")
+        if r["median_confidence"] is not None:
+            lines.append(
+                f"  confidence: median {r['median_confidence']:.2f}, {r['uncertain_share']:.1%} of the map under "
+                f"{UNCERTAIN:g} (drawn as uncertain)"
+            )
         lines.append("  warnings: " + ("; ".join(r["warnings"]) if r["warnings"] else "none"))
     return "\n".join(lines)
 
