@@ -7,10 +7,10 @@ statistics are compared with the range the training scans covered (`models/weigh
 `python -m aftershock.models.scan_reference_train`); a statistic outside it, widened by TOLERANCE either side,
 gives one warning per run and reason, in the log and the run's `warnings`.
 
-Statistics (sensor frame, returns at least MIN_RANGE_M away): `points` (returns a scan: density), `range_m`
-(their median range), `beams` (distinct rings, where the log has them; not measured otherwise), `vertical_fov_deg`
-(elevation span, 0.5th to 99.5th percentile: the beam pattern), `returns_per_voxel` (points kept for labelling
-per map voxel they fall in).
+The first scan and every CHECK_EVERY-th registered scan after it are checked. Statistics (sensor frame):
+`points` (returns a scan: density), `range_m` (their median range), `beams` (distinct rings, where the log has
+them; not measured otherwise), `vertical_fov_deg` (elevation span, 0.5th to 99.5th percentile: the beam
+pattern), `returns_per_voxel` (points kept for labelling per map voxel they fall in).
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ from aftershock.pipeline.types import Frame, Scan
 
 REFERENCE_FILE: Final = WEIGHTS_DIR / "scan_reference.json"
 TOLERANCE: Final = 0.25  # a statistic this share beyond the training range's ends is outside it
-SAMPLE: Final = 8192  # returns looked at for the range and elevation statistics (every k-th)
+SAMPLE: Final = 4096  # points looked at for the range and elevation statistics (every k-th)
+CHECK_EVERY: Final = 10  # scans checked: the first and every 10th after it (a log's sensor does not change)
 MIN_RANGE_M: Final = 0.05  # nearer returns are the zeros organised clouds put where nothing returned
 
 # statistic -> the reason a warning names, and what the statistic is in words
@@ -57,23 +58,26 @@ def returns_per_voxel(kept_points: int, voxels: int) -> float | None:
 
 def scan_stats(scan: Scan, per_voxel: float | None) -> ScanStats:
     """The statistics of one scan in its sensor frame; `per_voxel` (returns per map voxel) comes from the
-    labelling stage (`returns_per_voxel`)."""
+    labelling stage (`returns_per_voxel`). Returns are counted exactly; range and elevation are read from every
+    k-th point (at most SAMPLE)."""
     p = scan.points
-    r = np.linalg.norm(p, axis=1)
+    n = len(p)
+    sample = p[:: max(1, n // SAMPLE)]
+    r = np.sqrt(np.einsum("ij,ij->i", sample, sample))
     ok = np.isfinite(r) & (r >= MIN_RANGE_M)
-    idx = np.flatnonzero(ok)
-    step = max(1, len(idx) // SAMPLE)
-    s = idx[::step]
-    if len(s):
-        el = np.degrees(np.arctan2(p[s, 2], np.hypot(p[s, 0], p[s, 1])))
+    # the zeros and NaNs organised clouds hold where nothing returned are no returns
+    valid = np.isfinite(p[:, 0]) & ((p[:, 0] != 0) | (p[:, 1] != 0) | (p[:, 2] != 0))
+    if ok.any():
+        q = sample[ok]
+        el = np.degrees(np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])))
         lo, hi = np.percentile(el, (0.5, 99.5))
-        fov, med = float(hi - lo), float(np.median(r[s]))
+        fov, med = float(hi - lo), float(np.median(r[ok]))
     else:
         fov, med = 0.0, 0.0
     beams = None
-    if scan.ring is not None and len(idx):
-        beams = int(np.count_nonzero(np.bincount(scan.ring[idx].astype(np.int64))))
-    return ScanStats(len(idx), med, beams, fov, per_voxel)
+    if scan.ring is not None and valid.any():
+        beams = int(np.count_nonzero(np.bincount(scan.ring[valid])))
+    return ScanStats(int(valid.sum()), med, beams, fov, per_voxel)
 
 
 @dataclass(frozen=True)
@@ -118,9 +122,13 @@ class DistributionCheck:
         self.notice = notice
         self.warnings: list[str] = []
         self._said: set[str] = set()
+        self._seen = 0
 
     def check(self, frame: Frame) -> None:
-        if frame.voxel_points is None:
+        if frame.voxel_points is None or not frame.registration_ok:
+            return
+        self._seen += 1
+        if (self._seen - 1) % CHECK_EVERY:
             return
         rpv = returns_per_voxel(frame.counts.get("kept", 0), len(frame.voxel_points))
         for name, value, (lo, hi) in self.reference.outside(scan_stats(frame.scan, rpv)):
