@@ -136,7 +136,7 @@ class FileExportSink(Sink):
         if cloud.class_ids is not None and cloud.colors is None:
             cloud = replace(cloud, colors=class_colors(cloud.class_ids), normals=None)
         # the path was checked at construction; class colours stand in for a colour the log did not have
-        write_cloud(self.map_path, cloud, force=True, stand_in_colour=final_map.colors is None)
+        write_cloud(self.map_path, cloud, force=True, stand_in_color=final_map.colors is None)
         data = asdict(summary)
         stats = map_statistics(final_map)
         if not data["instances_per_class"]:

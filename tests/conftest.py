@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-# AFTERSHOCK_SHARED_DATA points a checkout elsewhere (a git worktree) at the shared data
+# ../shared/data beside the checkout; AFTERSHOCK_SHARED_DATA names it for a checkout elsewhere (a worktree)
 SHARED_DATA = Path(os.environ.get("AFTERSHOCK_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 os.environ.setdefault("CI", "true")  # keeps the rerun CLI from asking about analytics
