@@ -125,12 +125,12 @@ class DistributionCheck:
         self._seen = 0
 
     def check(self, frame: Frame) -> None:
-        if frame.voxel_points is None or not frame.registration_ok:
+        if frame.map_rows is None or not frame.registration_ok:
             return
         self._seen += 1
         if (self._seen - 1) % CHECK_EVERY:
             return
-        rpv = returns_per_voxel(frame.counts.get("kept", 0), len(frame.voxel_points))
+        rpv = returns_per_voxel(len(frame.map_rows.points), len(frame.map_rows.first_points))
         for name, value, (lo, hi) in self.reference.outside(scan_stats(frame.scan, rpv)):
             reason, words = REASONS[name]
             if reason in self._said:

@@ -15,7 +15,7 @@ from aftershock.pipeline.classes import UNLABELLED
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import read_cloud, write_cloud
 from aftershock.pipeline.config import Config
-from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller
+from aftershock.pipeline.labellers.mcpnet import create
 from aftershock.pipeline.types import LabelledCloud
 from aftershock.pipeline.voxel_map import VoxelMap
 from aftershock.sinks import rerun_blueprint as L
@@ -64,7 +64,7 @@ def test_the_recording_carries_confidence_beside_class_ids_and_shows_the_uncerta
 
 
 def test_an_instance_vote_gives_each_voxel_the_networks_probability_of_its_new_class() -> None:
-    labeller = MCPNetLabeller(Config())
+    labeller = create(Config())
     vmap = VoxelMap(0.1, labeller.embedding_dim)
     rows, _ = vmap.insert(np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5.0, 0, 0]]))
     c = labeller.net.num_classes
