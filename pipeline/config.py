@@ -304,6 +304,18 @@ class CrackConfig(_Section):
     ridge_straight_width_m: NonNegative = 0.0
     ridge_rim: bool = True  # at a face's rim (one side off the face) the other side alone is the reference
     ridge_member_z: NonNegative = 1.0  # a region's crack points: darker than around by this many robust sigmas
+    # detector "region" (damage/region.py): damaged regions on each face's orthoimages, evidence channels in robust
+    # z-scores of the face's own surface; chosen in bench_cracks_region (region_high calibrated on simulated intact
+    # elements only, the rest leave-one-out on the real elements); docs/benchmarks/cracks.md
+    region_channels: tuple[str, ...] = ("dark", "rough")
+    region_scales_m: tuple[float, ...] = (0.01, 0.02, 0.04)
+    region_combine: Literal["sum", "max"] = "sum"
+    region_high: Positive = 6.0  # a region's peak evidence (90th percentile, robust sigmas) reaches this
+    region_gate_ratio: Positive = 1.25  # an element has cracks only if some region's peak reaches high x this
+    region_low_ratio: Fraction = 0.5
+    region_smooth_m: NonNegative = 0.01
+    region_open_m: NonNegative = 0.04  # evidence narrower than this (a joint's groove, a line) is no region; 0 = off
+    region_min_area_m2: NonNegative = 0.002
     element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...
     element_radius_m: Positive = 0.1  # ... joining neighbours within this distance ...
     element_angle_deg: Angle = 20.0  # ... whose normals differ by less than this ...
