@@ -14,6 +14,7 @@ from typing import Final
 import typer
 
 from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
+from aftershock.pipeline.text import safe
 
 EXIT_SIGINT: Final = 130  # 128 + the signal's number, as shells report a process a signal ended
 EXIT_SIGTERM: Final = 143
@@ -68,7 +69,7 @@ def _register_commands() -> None:
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     if issubclass(category, DamagedLogWarning | UserWarning):
-        print(f"aftershock: warning: {message}", file=sys.stderr)
+        print(f"aftershock: warning: {safe(message)}", file=sys.stderr)
     else:
         print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 

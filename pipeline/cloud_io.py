@@ -59,6 +59,7 @@ def check_ply_body(path: Path) -> None:
     lines = head[:end].decode("ascii", "replace").splitlines()
     fmt = next((ln.split()[1] for ln in lines if ln.startswith("format") and len(ln.split()) > 1), "ascii")
     if fmt == "ascii":
+        _check_ply_rows(path, lines, body_at)
         return
     sample = head[body_at : body_at + 256]
     if len(sample) >= 16 and all(c in _ASCII_NUMBER_BYTES for c in sample):
@@ -67,6 +68,39 @@ def check_ply_body(path: Path) -> None:
     expected = _ply_fixed_bytes(lines)
     if expected is not None and size < expected:
         raise InputError(f"the header says {fmt} with {expected} bytes of data, but the file holds {size}", path)
+    if expected is not None and size > expected:
+        _warn(path, f"the header declares {expected} bytes of data but the file holds {size}; the rest is not read")
+
+
+def _warn(path: Path, message: str) -> None:
+    import warnings
+
+    from aftershock.pipeline.errors import DamagedLogWarning
+
+    warnings.warn(DamagedLogWarning(f"{path}: {message}"), stacklevel=3)
+
+
+def _check_ply_rows(path: Path, lines: list[str], body_at: int) -> None:
+    """An ASCII PLY whose elements declare fewer rows than its body holds (10 vertices over 500 rows) reads only
+    the declared ones: say so. Rows are counted in blocks, never holding the file."""
+    declared = 0
+    for ln in lines:
+        words = ln.split()
+        if words[:1] == ["element"] and len(words) == 3 and words[2].isdigit():
+            declared += int(words[2])
+    rows = 0
+    carry = b""
+    with path.open("rb") as fh:
+        fh.seek(body_at)
+        while block := fh.read(1 << 20):
+            pieces = (carry + block).split(b"\n")
+            carry = pieces.pop()
+            rows += sum(1 for piece in pieces if piece.strip())
+    rows += bool(carry.strip())  # a last row without its newline
+    if rows > declared:
+        _warn(
+            path, f"the header declares {declared} rows but the file holds {rows}; only the first {declared} are read"
+        )
 
 
 _PLY_HEADER_MAX: Final = 64 * 1024
