@@ -14,7 +14,7 @@ from typing import Final
 import typer
 
 from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
-from aftershock.pipeline.text import safe
+from aftershock.pipeline.text import SafeFormatter, safe
 
 EXIT_SIGINT: Final = 130  # 128 + the signal's number, as shells report a process a signal ended
 EXIT_SIGTERM: Final = 143
@@ -96,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     if not sys.stderr.isatty():  # no colour codes in logs and files: Rerun's and rich's loggers honour NO_COLOR
         os.environ.setdefault("NO_COLOR", "1")
     logging.basicConfig(level=logging.WARNING, format="aftershock: %(levelname)s: %(message)s")
+    for handler in logging.getLogger().handlers:
+        handler.setFormatter(SafeFormatter("aftershock: %(levelname)s: %(message)s"))
     warnings.showwarning = _show_warning
     _register_commands()
     _Terminated.seen = False

@@ -6,6 +6,7 @@ A topic named "a\\nb" or "\\x1b[31m" must not split a one-line error in two or r
 
 from __future__ import annotations
 
+import logging
 import re
 from typing import Final
 
@@ -40,3 +41,10 @@ def one_line(text: object) -> str:
     """A message as exactly one safe line (a library's multi-line message keeps its lines, joined by ' | ')."""
     lines = [line.strip() for line in str(text).splitlines() if line.strip()]
     return safe(" | ".join(lines))
+
+
+class SafeFormatter(logging.Formatter):
+    """Log records as one safe line each (a logged path or topic may hold control characters)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return one_line(super().format(record))
