@@ -124,6 +124,11 @@ def _dispatch(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print("aftershock: interrupted", file=sys.stderr)
         return EXIT_SIGINT
+    except OSError as exc:  # a path the system refuses (a name over 255 bytes, no permission) wherever it entered
+        where = next((f for f in (exc.filename, exc.filename2) if f is not None), None)
+        what = exc.strerror or type(exc).__name__
+        print(f"aftershock: error: {safe(f'{where}: {what}' if where is not None else what)}", file=sys.stderr)
+        return 2
     except typer.Exit as exc:
         return exc.exit_code
     except typer.Abort:
