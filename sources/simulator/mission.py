@@ -102,10 +102,12 @@ class Mission:
 
         if not np.isfinite(t):
             raise InputError(f"{setting}: {t} is not a time")
+        # a sweep never starts before the previous one ended: at most t / sweep_s + 1 sweeps start before t
+        most = t / self.profile.sweep_s + 1
+        check_allocation(2 * most * _SWEEP_BYTES, setting, f"{t:g} s of sweeps ({most:.3g} sweep times)")
         n = 64
         while self.sweep_starts(n)[-1] < t:
             n *= 2
-            check_allocation(n * _SWEEP_BYTES, setting, f"{t:g} s of sweeps ({n} sweep times)")
         return int(np.searchsorted(self.sweep_starts(n), t, side="left"))
 
     def first_at_or_after(self, t: float, setting: str = "--start") -> int:
