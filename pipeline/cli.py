@@ -84,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     message, also 2), Ctrl-C exit code 130, SIGTERM the same clean stop with 143."""
     if not sys.stderr.isatty():  # no colour codes in logs and files: Rerun's and rich's loggers honour NO_COLOR
         os.environ.setdefault("NO_COLOR", "1")
+    # Rerun's Rust side logs its own connection and flush errors on stderr; aftershock reports them in one line
+    os.environ.setdefault("RUST_LOG", "off")
     logging.basicConfig(level=logging.WARNING, format="aftershock: %(levelname)s: %(message)s")
     for handler in logging.getLogger().handlers:
         handler.setFormatter(SafeFormatter("aftershock: %(levelname)s: %(message)s"))

@@ -51,7 +51,7 @@ def _natural_key(p: Path) -> list[int | str]:
 def list_files(path_or_glob: str | Path) -> list[Path]:
     """The readable point-cloud files of a folder, a glob or a single file, in (natural) name order."""
     text = str(path_or_glob)
-    if is_glob(text):
+    if is_glob(text) and not Path(text).exists():  # a real folder named `run[1]` is that folder, not a pattern
         found = [Path(p) for p in glob.glob(text) if Path(p).is_file()]
     else:
         p = Path(text)
