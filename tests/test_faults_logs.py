@@ -148,3 +148,36 @@ def test_an_ascii_pcd_whose_point_count_does_not_match_its_rows(points: int, nam
     else:
         assert code == 0 and named in err, err
         assert json.loads(out)["point_clouds"][0]["points_max"] == 2
+
+
+def test_a_real_folder_named_like_a_glob_is_that_folder(tmp_path: Path, capsys) -> None:
+    folder = tmp_path / "run[1]"
+    folder.mkdir()
+    rng = np.random.default_rng(1)
+    for k in range(2):
+        pts = rng.uniform(1, 5, (300, 4)).astype("<f4")
+        (folder / f"{k:06d}.bin").write_bytes(pts.tobytes())
+    (tmp_path / "run1").mkdir()  # what the pattern `run[1]` would match instead
+    code, out, err = cli(["info", str(folder), "-q", "--json"], capsys)
+    assert code == 0, err
+    assert json.loads(out)["point_clouds"][0]["scans"] == 2
+
+
+@pytest.mark.parametrize("poison", ["nan", "a string state"])
+def test_weights_full_of_nan_or_of_the_wrong_type_are_one_line(poison: str, log12: Path, tmp_path: Path, capsys):
+    import torch
+
+    from aftershock.models.mcpnet import default_weights
+
+    blob = torch.load(default_weights(), map_location="cpu", weights_only=True)
+    if poison == "nan":
+        blob["state"] = {
+            k: torch.full_like(v, float("nan")) if v.is_floating_point() else v for k, v in blob["state"].items()
+        }
+    else:
+        blob["state"] = "weights"
+    bad = tmp_path / "bad.pt"
+    torch.save(blob, bad)
+    code, _, err = cli(["run", str(log12), "-q", "--max-scans", "2", "--set", f"label.weights={bad}"], capsys)
+    assert code == 2
+    one_error_line(err, bad, "NaN" if poison == "nan" else "not a table of tensors")

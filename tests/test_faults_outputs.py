@@ -151,3 +151,18 @@ def test_an_export_folder_in_use_is_refused_naming_the_holder_and_a_dead_holders
     assert code == 0, err
     assert len((folder / "poses_tum.txt").read_text().splitlines()) == 6
     assert not (folder / LOCK_FILE).exists() and not list(folder.glob("*.part"))
+
+
+def test_two_outputs_on_one_file_or_an_output_on_an_input_are_refused(log: Path, tmp_path: Path, capsys) -> None:
+    same = tmp_path / "both.out"
+    code, _, err = cli(["run", str(log), *RG, "-q", "--save", str(same), "--mcap-out", str(same)], capsys)
+    assert code == 2
+    one_error_line(err, same, "--save", "--mcap-out")
+    link = tmp_path / "link.rrd"
+    link.symlink_to(log)
+    before = log.read_bytes()
+    for target in (log, link):
+        code, _, err = cli(["view", str(log), "--save", str(target), "--force"], capsys)
+        assert code == 2
+        one_error_line(err, target, "is the input")
+    assert log.read_bytes() == before

@@ -94,3 +94,21 @@ def test_values_that_cannot_be_or_would_exceed_memory_are_refused_naming_the_set
     assert code == 2
     one_error_line(err, named)
     assert not (tmp_path / "s.mcap").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (["train", "mcpnet", "--epochs", "-1", "--out", "{tmp}/w.pt"], "--epochs -1"),
+        (["train", "lrgnet", "--seed", "-1", "--out", "{tmp}/w.pt"], "--seed -1"),
+        (["batch", "sim://hall?scans=2", "--out", "{tmp}/b", "--worker-memory", "inf"], "--worker-memory inf"),
+    ],
+    ids=["train --epochs -1", "train --seed -1", "batch --worker-memory inf"],
+)
+def test_command_options_out_of_range_are_one_line_before_any_work(
+    args: list[str], named: str, tmp_path: Path, capsys
+) -> None:
+    code, _, err = cli([a.format(tmp=tmp_path) for a in args], capsys)
+    assert code == 2
+    one_error_line(err, named)
+    assert not (tmp_path / "w.pt").exists() and not (tmp_path / "b").exists()
