@@ -67,11 +67,20 @@ class _Terminated:
     """Set when SIGTERM arrived: the run stops as after Ctrl-C, and the exit code says which signal it was."""
 
     seen: bool = False
+    interrupted: bool = False  # Ctrl-C or SIGTERM arrived
 
 
 def _terminate(signum: int, _frame: object) -> None:
     # `docker stop`, systemd and `timeout` send SIGTERM: stop like Ctrl-C, so every output is finished.
     _Terminated.seen = True
+    _Terminated.interrupted = True
+    raise KeyboardInterrupt
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    # Ctrl-C, remembered: a KeyboardInterrupt raised inside a C extension's import comes out as another error
+    # (open3d's "ImportError: initialization failed"), which must still read as the interruption it is
+    _Terminated.interrupted = True
     raise KeyboardInterrupt
 
 
@@ -90,15 +99,30 @@ def main(argv: list[str] | None = None) -> int:
     for handler in logging.getLogger().handlers:
         handler.setFormatter(SafeFormatter("aftershock: %(levelname)s: %(message)s"))
     warnings.showwarning = _show_warning
-    _Terminated.seen = False
-    if threading.current_thread() is threading.main_thread():
+    _Terminated.seen = _Terminated.interrupted = False
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
         previous = signal.signal(signal.SIGTERM, _terminate)
+        previous_int = signal.signal(signal.SIGINT, _interrupt)
+    try:
+        code = _interrupted(argv)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
+    return _interrupted_code() if code == EXIT_SIGINT else code
+
+
+def _interrupted(argv: list[str] | None) -> int:
+    """`_dispatch`, where an error that an interruption caused (not the user's input) ends as the interruption."""
     try:
         code = _dispatch(argv)
-    finally:
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, previous)
-    return _interrupted_code() if code == EXIT_SIGINT else code
+    except Exception:
+        if not _Terminated.interrupted:
+            raise
+        print("aftershock: interrupted", file=sys.stderr)
+        return EXIT_SIGINT
+    return EXIT_SIGINT if _Terminated.interrupted and code not in (0, EXIT_SIGINT) else code
 
 
 def _dispatch(argv: list[str] | None) -> int:
@@ -120,6 +144,9 @@ def _dispatch(argv: list[str] | None) -> int:
         print(f"aftershock: error: {safe(f'{where}: {what}' if where is not None else what)}", file=sys.stderr)
         return 2
     except typer.Exit as exc:
+        if isinstance(exc.__cause__, KeyboardInterrupt):  # typer turns a Ctrl-C it meets into Exit(130), silently
+            print("aftershock: interrupted", file=sys.stderr)
+            return EXIT_SIGINT
         return exc.exit_code
     except typer.Abort:
         print("aftershock: interrupted", file=sys.stderr)
