@@ -401,7 +401,7 @@ def _read_config_file(p: Path) -> Any:
         raise InputError(f"cannot read the config file ({exc.strerror or exc})", p) from None
     except UnicodeDecodeError:
         raise InputError("not a valid config: it is not UTF-8 text", p) from None
-    kind = "JSON" if p.suffix == ".json" else "TOML"
+    kind = p.suffix.lstrip(".") or "TOML"
     try:
         return json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
     except RecursionError:
