@@ -28,6 +28,7 @@ COMMAND_MODULES: Final[tuple[str, ...]] = (
     "refine",
     "view",
     "batch",
+    "report",
 )
 
 app = typer.Typer(

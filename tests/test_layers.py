@@ -71,7 +71,7 @@ def layer_of(module: str) -> tuple[int, str]:
         return 3, "stream"
     if under(("sinks",)):
         return 4, "sinks"
-    if under(("pipeline.cli", "pipeline.__main__", "pipeline.commands")):
+    if under(("pipeline.cli", "pipeline.__main__", "pipeline.commands", "pipeline.report")):
         return 5, "cli"
     raise AssertionError(f"{module} has no layer: add it to tests/test_layers.py")
 
