@@ -325,8 +325,13 @@ class ReportConfig(_Section):
     # Slab tilt flagged at the same slopes (an assumption of this tool, not a published limit)
     tilt_restricted_deg: Annotated[float, Field(gt=0, le=90)] = 0.29  # atan(1/200)
     tilt_unsafe_deg: Annotated[float, Field(gt=0, le=90)] = 0.57  # atan(1/100)
-    # Worst drift error per storey measured on the simulator's damaged buildings (README, Story drift and tilt)
-    drift_uncertainty_mm: Positive = 2.0
+    # Storeys are re-measured on the map with up from the lowest slab: `run` levels a map from its first scan,
+    # and on 2 drift frames (missing-slab 5, partial-collapse 6) that left 8-9 mm per storey, 0.3-2.6 mm with this
+    drift_gravity: Literal["ground-plane", "frame-z"] = "ground-plane"
+    # Worst drift error per storey on those frames through run (2.6 mm; measure_drift alone: 1.90 mm, README)
+    drift_uncertainty_mm: Positive = 3.0
+    # With drift_gravity frame-z: how far a levelled map's up may be off (0.31° seen on a drift frame)
+    level_uncertainty_deg: Annotated[float, Field(ge=0, le=10)] = 0.35
     min_storey_height_m: Positive = 2.0  # slabs closer than this: the upper one is furniture or a platform
     collapse_debris_share: Fraction = 0.25  # debris over this share of a storey's floor: partial collapse
     exit_clearance_m: Positive = 1.0  # debris within this of a door blocks it

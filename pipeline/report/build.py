@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from aftershock.pipeline.config import Config
-from aftershock.pipeline.report.assess import CITATIONS, assess_mission, storeys, worst_posting
+from aftershock.pipeline.report.assess import CITATIONS, assess_mission, worst_posting
 from aftershock.pipeline.report.gather import gather
 from aftershock.pipeline.report.plan import draw_plan
 
@@ -34,11 +34,8 @@ def make_report(folder: Path, cfg: Config) -> Report:
     missions = []
     plans: dict[tuple[str, int], bytes] = {}
     for m in site.missions:  # one iteration per mission
-        entry = assess_mission(m, cfg)
+        entry, levels = assess_mission(m, cfg)
         missions.append(entry)
-        if m.status == "failed":
-            continue
-        levels = storeys(m, cfg.report)
         for s in levels:
             plans[(m.name, s["index"])] = draw_plan(m, levels, s["index"], entry["findings"], cfg.report)
     postings = [e["posting"] for e in missions if e.get("posting")]
@@ -61,6 +58,8 @@ def make_report(folder: Path, cfg: Config) -> Report:
             "tilt_restricted_deg": r.tilt_restricted_deg,
             "tilt_unsafe_deg": r.tilt_unsafe_deg,
             "drift_uncertainty_mm": r.drift_uncertainty_mm,
+            "level_uncertainty_deg": r.level_uncertainty_deg,
+            "drift_gravity": r.drift_gravity,
             "collapse_debris_share": r.collapse_debris_share,
             "exit_clearance_m": r.exit_clearance_m,
             "sources": CITATIONS,

@@ -103,6 +103,8 @@ def _mission(m: dict[str, Any], report: Report) -> str:
     ]  # fmt: skip
     out.append(_table(["item", "status", "evidence", "where in the recording"], rows))
     out.append("<h3>Storey drift and tilt</h3>")
+    dm = m["drift_measured"]
+    out.append(f'<p class="small">Measured on <code>{escape(dm["from"])}</code>; up: {escape(dm["up_text"])}.</p>')
     out.append(_storeys(m["storeys"]))
     out.append("<h3>Plan views</h3>")
     for s in m["storeys"]:
@@ -170,7 +172,7 @@ def render(report: Report) -> str:
             [
                 escape(m["name"]),
                 escape(m["status"]),
-                _v(m["started_utc"]),
+                escape(m["started_utc"]) if m["started_utc"] else '<span class="nm">no clock time in the log</span>',
                 _v(m["duration_s"], ".1f", " s"),
                 _v(m["path_length_m"], ".1f", " m"),
                 _v(m["scans"]),
@@ -203,7 +205,8 @@ def render(report: Report) -> str:
         f"1/{round(1 / lim['drift_unsafe_ratio'])} (unsafe): {escape(src['drift_limits'])}.</li>"
         f"<li>Slab tilt flagged at {lim['tilt_restricted_deg']}° and {lim['tilt_unsafe_deg']}°: "
         f"{escape(src['tilt_limits'])}.</li>"
-        f"<li>Drift uncertainty ± {lim['drift_uncertainty_mm']} mm per storey: {escape(src['uncertainty'])}.</li>"
+        f"<li>Drift uncertainty ± {lim['drift_uncertainty_mm']} mm per storey (with up from the map's z, + the "
+        f"storey height × tan {lim['level_uncertainty_deg']}°): {escape(src['uncertainty'])}.</li>"
         f"<li>Partial collapse when debris covers {lim['collapse_debris_share']:.0%} of a storey's floor; an exit "
         f"blocked when debris lies within {lim['exit_clearance_m']} m of a door (choices of this tool).</li>"
         f"<li>Checklist: {escape(src['checklist'])}.</li>"
