@@ -667,6 +667,8 @@ class RerunSink(Sink):
             self.rec.log(gone, rr.Clear(recursive=False))
 
     def _log_stories(self, stories: list[Story], static: bool) -> None:
+        from aftershock.pipeline.damage.report import story_text
+
         lo, hi = self._map_bounds if self._map_bounds is not None else (np.full(3, -5.0), np.full(3, 5.0))
         cx, cy = (lo[:2] + hi[:2]) / 2
         half = np.maximum((hi[:2] - lo[:2]) / 2, 0.5)
@@ -675,7 +677,8 @@ class RerunSink(Sink):
             a, b, c, d = (float(v) for v in s.plane)
             z = -(a * cx + b * cy + d) / c if abs(c) > 1e-6 else s.height_m
             center = np.array([cx, cy, z])
-            label = f"story {s.index}: drift {s.drift_mm:.1f} mm, tilt {s.tilt_deg:.2f}°"
+            measured = s.drift_x_mm is not None and s.drift_y_mm is not None and s.drift_mm is not None
+            label = f"story {s.index}: {story_text(s)}"
             self.rec.log(
                 f"{L.STORIES}/s{s.index}",
                 rr.Boxes3D(
@@ -688,12 +691,15 @@ class RerunSink(Sink):
                 ),
                 static=static,
             )
+            if not measured or s.reason is not None:  # not measured, or the reference: no arrow and no "0.0 mm"
+                continue
+            assert s.drift_x_mm is not None and s.drift_y_mm is not None and s.drift_mm is not None
             origins.append(center)
             vectors.append([s.drift_x_mm * DRIFT_ARROW_M_PER_MM, s.drift_y_mm * DRIFT_ARROW_M_PER_MM, 0.0])
             labels.append(f"{s.drift_mm:.1f} mm")
-        self.rec.log(
-            L.DRIFT, rr.Arrows3D(origins=origins, vectors=vectors, labels=labels, colors=(255, 90, 90)), static=static
-        )
+        if origins:
+            arrows = rr.Arrows3D(origins=origins, vectors=vectors, labels=labels, colors=(255, 90, 90))
+            self.rec.log(L.DRIFT, arrows, static=static)
 
 
 def _rotation_to_quaternion(r: np.ndarray) -> np.ndarray:

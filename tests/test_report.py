@@ -185,6 +185,10 @@ def test_a_batch_with_a_failed_mission(tmp_path: Path, capsys: pytest.CaptureFix
     by = {m["name"]: m for m in data["missions"]}
     assert by["broken"]["status"] == "failed" and "point-cloud topic" in by["broken"]["error"]
     assert by["sample"]["status"] == "ok" and by["sample"]["recording"].endswith("recording.rrd")
+    import pyarrow.parquet as pq
+
+    rows = {r["mission"]: r for r in pq.read_table(out / "missions.parquet").to_pylist()}
+    assert rows["sample"]["worst_drift_mm"] is None  # one slab: not measured, never 0.0 in the site index
     assert data["site"] == data["site"] | {"kind": "batch", "missions": 2, "failed": 1}
     text = _chromium_ok(out / "report.html")
     assert "point-cloud topic" in text

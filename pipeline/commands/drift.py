@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
         """Drift (mm) and tilt (degrees) of every story slab against the lowest one."""
         from aftershock.pipeline.cloud_io import finite_points, read_cloud
         from aftershock.pipeline.damage.drift import Gravity, measure_drift
-        from aftershock.pipeline.damage.report import story_json
+        from aftershock.pipeline.damage.report import story_json, story_text
         from aftershock.pipeline.errors import InputError
 
         sets = list(set_ or [])
@@ -51,6 +51,10 @@ def register(app: typer.Typer) -> None:
             return
         print(f"{len(result.stories)} slab plane(s); up = {result.gravity}")
         for s in result.stories:
+            if s.drift_mm is None or s.drift_x_mm is None or s.drift_y_mm is None or s.tilt_deg is None:
+                print(f"  story {s.index} at z {s.height_m:.3f} m: {story_text(s)} ({s.num_points} points)")
+                continue
+            assert s.tilt_x_deg is not None and s.tilt_y_deg is not None
             print(
                 f"  story {s.index} at z {s.height_m:.3f} m: drift x {s.drift_x_mm:+.1f} y {s.drift_y_mm:+.1f} "
                 f"total {s.drift_mm:.1f} mm; tilt x {s.tilt_x_deg:+.3f} y {s.tilt_y_deg:+.3f} "

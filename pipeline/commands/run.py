@@ -342,11 +342,10 @@ def print_on_demand(results: dict[str, Any]) -> None:
         d = results["damage"]
         severe = d.get("severe_cracks", 0)
         print(f"damage: {len(d['cracks'])} cracks ({severe} severe), {len(d['stories'])} story planes")
+        from aftershock.pipeline.damage.report import story_text
+
         for story in d["stories"]:
-            print(
-                f"  story {story['index']} at {story['height_m']:.2f} m: drift {story['drift_mm']:.1f} mm, "
-                f"tilt {story['tilt_deg']:.3f}°"
-            )
+            print(f"  story {story['index']} at {story['height_m']:.2f} m: {story_text(story)}")
         for note in d.get("notes", []):
             print(f"  note: {note}")
 
