@@ -300,6 +300,9 @@ class RerunSink(Sink):
         log_topic = self._info.topic if self._info.raw_in_log else None
         self.rec.set_sinks(*self._sinks, default_blueprint=L.default_blueprint(log_topic=log_topic))
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, annotation_context(), static=True)
+        discs, names = L.legend()
+        self.rec.log(L.LEGEND_SWATCHES, discs, static=True)
+        self.rec.log(L.LEGEND_NAMES, names, static=True)
 
     def stage(self, frame: Frame, stage: Stage) -> None:
         self._start()
@@ -667,8 +670,6 @@ class RerunSink(Sink):
             self.rec.log(gone, rr.Clear(recursive=False))
 
     def _log_stories(self, stories: list[Story], static: bool) -> None:
-        from aftershock.pipeline.damage.report import story_text
-
         lo, hi = self._map_bounds if self._map_bounds is not None else (np.full(3, -5.0), np.full(3, 5.0))
         cx, cy = (lo[:2] + hi[:2]) / 2
         half = np.maximum((hi[:2] - lo[:2]) / 2, 0.5)
@@ -678,7 +679,12 @@ class RerunSink(Sink):
             z = -(a * cx + b * cy + d) / c if abs(c) > 1e-6 else s.height_m
             center = np.array([cx, cy, z])
             measured = s.drift_x_mm is not None and s.drift_y_mm is not None and s.drift_mm is not None
-            label = f"story {s.index}: {story_text(s)}"
+            if not measured:
+                label = f"story {s.index}: drift and tilt not measured"
+            elif s.reason is not None:
+                label = f"story {s.index}: reference level"
+            else:
+                label = f"story {s.index}: drift {s.drift_mm:.1f} mm, tilt {s.tilt_deg:.2f}°"
             self.rec.log(
                 f"{L.STORIES}/s{s.index}",
                 rr.Boxes3D(
@@ -687,8 +693,15 @@ class RerunSink(Sink):
                     quaternions=[rr.Quaternion(xyzw=_quaternion_to_z(np.array([a, b, c])))],
                     colors=[(120, 180, 255, 60)],
                     fill_mode="solid",
-                    labels=[label],
                 ),
+                static=static,
+            )
+            # the label on an opaque point at the plane's corner: the box's own label would take its faint
+            # colour, and at the centre it would sit on the map's own labels
+            corner = np.array([cx - half[0], cy - half[1], z])
+            self.rec.log(
+                f"{L.STORIES}/s{s.index}/label",
+                rr.Points3D([corner], colors=[(150, 200, 255)], radii=0.02, labels=[label], show_labels=True),
                 static=static,
             )
             if not measured or s.reason is not None:  # not measured, or the reference: no arrow and no "0.0 mm"

@@ -78,6 +78,41 @@ def test_the_viewer_says_not_measured_and_draws_no_arrow(tmp_path: Path) -> None
     sink.damage([], None, [story])
     sink.close()
     rec = read_rrd(path)
-    [label] = rec.texts(f"{L.STORIES}/s0", "Boxes3D:labels", static=True)
+    [label] = rec.texts(f"{L.STORIES}/s0/label", "Points3D:labels", static=True)
     assert "not measured" in label and not ZERO.search(label)
     assert L.DRIFT not in rec.entities
+
+
+def test_the_legend_names_every_class_in_its_colour(tmp_path: Path) -> None:
+    """The legend (visible in the default layout's "site" tab) holds one disc per class in the class colour and
+    each class's name."""
+    from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES
+
+    path = tmp_path / "legend.rrd"
+    sink = RerunSink(path, False, None, RerunConfig())
+    sink.damage([], None, [])
+    sink.close()
+    rec = read_rrd(path)
+    names = rec.texts(L.LEGEND_NAMES, "Points2D:labels", static=True)
+    assert names == [*CLASS_NAMES, "unlabelled"]
+    [colours] = rec.rows(L.LEGEND_SWATCHES, "Points2D:colors", static=True)
+    rgba = np.array(colours, dtype=np.uint32)
+    rgb = np.stack([(rgba >> 24) & 255, (rgba >> 16) & 255, (rgba >> 8) & 255], axis=1)
+    assert np.array_equal(rgb[: len(CLASS_NAMES)], CLASS_COLORS)
+
+
+def test_the_default_layout_opens_on_the_site_with_a_plan_and_the_legend() -> None:
+    """First tab: the 3D map, the plan (seen from straight above) and the legend; the engineering plots and the
+    log on the second tab."""
+    import rerun.blueprint as rrb
+
+    tabs = L.default_blueprint().root_container
+    assert isinstance(tabs, rrb.Tabs)
+    site, engineering = tabs.contents
+    assert site.name == "site" and engineering.name == "engineering"
+    main_view, side = site.contents
+    plan, legend = side.contents
+    assert isinstance(main_view, rrb.Spatial3DView) and isinstance(plan, rrb.Spatial3DView)
+    assert plan.name.startswith("plan") and isinstance(legend, rrb.Spatial2DView) and legend.origin == L.LEGEND
+    kinds = [type(v).__name__ for v in engineering.contents]
+    assert kinds == ["TimeSeriesView", "TimeSeriesView", "TextLogView"]
