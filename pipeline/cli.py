@@ -65,6 +65,23 @@ def _register_commands() -> None:
                 continue
             raise
         module.register(app)
+    _untag_flags()
+
+
+def _untag_flags() -> None:
+    """No `<bool>` type tag after on/off flags (--help included) in `--help`: typer shows every option's type,
+    and for a flag that reads as a value to give. Other options keep theirs (<path>, <int> ...)."""
+    from typer.core import TyperOption
+
+    shown = TyperOption.display_type_rich
+    if getattr(shown, "untagged", False):
+        return
+
+    def display_type_rich(self: TyperOption, ctx: typer.Context) -> str | None:
+        return None if self.is_flag else shown(self, ctx)
+
+    display_type_rich.untagged = True  # type: ignore[attr-defined]
+    TyperOption.display_type_rich = display_type_rich  # type: ignore[method-assign]
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

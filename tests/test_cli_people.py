@@ -1,0 +1,80 @@
+"""What a person at a terminal sees (issue 29): a progress bar through a pseudo-terminal, a notice before a run
+that would save nothing, closing hints last with commands that work as printed, `--help` without `<bool>`."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import pty
+import select
+import shlex
+import struct
+import subprocess
+import sys
+import termios
+from pathlib import Path
+
+import pytest
+
+from aftershock.pipeline.cli import main
+from aftershock.pipeline.commands.run import SAMPLE
+
+CLI = [sys.executable, "-m", "aftershock.pipeline"]
+ENV = os.environ | {"CI": "true", "RERUN_ANALYTICS": "0", "OMP_NUM_THREADS": "1"}
+FAST = ["--labeller", "region-growing"]
+
+
+def run_in_pty(cmd: list[str], timeout: float = 180) -> tuple[int, str]:
+    """Run `cmd` with stdout and stderr on a 40 x 120 pseudo-terminal; its exit code and everything it wrote."""
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    proc = subprocess.Popen(cmd, stdin=slave, stdout=slave, stderr=slave, env=ENV, close_fds=True)
+    os.close(slave)
+    out = b""
+    try:
+        while select.select([master], [], [], timeout)[0]:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # the child closed the terminal
+                break
+            if not chunk:
+                break
+            out += chunk
+    finally:
+        os.close(master)
+    return proc.wait(timeout=30), out.decode(errors="replace")
+
+
+def test_a_terminal_run_shows_progress_and_says_nothing_will_be_saved() -> None:
+    code, text = run_in_pty([*CLI, "run", str(SAMPLE), *FAST])
+    assert code == 0, text
+    assert "nothing will be saved" in text.split("processed")[0]  # before the work
+    assert "%|" in text and "scan/s" in text and "22/22" in text  # tqdm's bar on the terminal
+
+
+def test_closing_hints_come_last_and_work_as_printed(tmp_path: Path) -> None:
+    rrd, folder = tmp_path / "r.rrd", tmp_path / "export"
+    cmd = [*CLI, "run", str(SAMPLE), "--save", str(rrd), "--export", str(folder), "--damage", "-q", *FAST]
+    done = subprocess.run(cmd, capture_output=True, text=True, env=ENV, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.strip().splitlines()
+    hints = [
+        i for i, line in enumerate(lines) if line.startswith(("open it with", "open the recording", "site report"))
+    ]
+    assert hints and hints[-1] == len(lines) - 1 and all(not lines[i].startswith("  ") for i in hints)
+    assert max(i for i, line in enumerate(lines) if line.startswith("damage:")) < hints[0]
+    report = next(line for line in lines if line.startswith("site report: "))
+    argv = shlex.split(report.removeprefix("site report: "))
+    assert subprocess.run(argv, capture_output=True, env=ENV, timeout=300).returncode == 0  # as printed
+    assert (folder / "report.html").is_file()
+    view = next(line for line in lines if line.startswith("open it with its log: "))
+    program = shlex.split(view.removeprefix("open it with its log: "))
+    assert program[-3:] == ["view", str(SAMPLE), str(rrd)]
+    assert subprocess.run([*program[:-3], "--version"], capture_output=True, env=ENV).returncode == 0
+
+
+@pytest.mark.parametrize("command", [[], ["run"], ["report"], ["batch"]])
+def test_help_has_no_bool_tags(command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([*command, "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "--help" in out and "<bool>" not in out
