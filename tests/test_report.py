@@ -74,7 +74,7 @@ def _check_promise(data: dict) -> None:
         assert p["suggested"] in {"inspected", "restricted use", "unsafe"} and p["rule"] and p["advisory"] is True
 
 
-def _chromium_ok(html: Path, shot: Path | None = None) -> str:
+def _chromium_ok(html: Path, shot: Path | None = None, pdf: Path | None = None) -> str:
     """Opens the report in headless Chromium: no console error, nothing asked of the network, every image
     loaded. Returns the page's text."""
     pytest.importorskip("playwright")
@@ -82,7 +82,7 @@ def _chromium_ok(html: Path, shot: Path | None = None) -> str:
 
     if not CHROMIUM.is_file():
         pytest.skip(f"{CHROMIUM} is not installed")
-    page = render(html, shot)
+    page = render(html, shot, pdf)
     assert page.console_errors == []
     assert all(u.startswith(("file:", "data:")) for u in page.requests), page.requests
     assert page.image_widths and all(w > 0 for w in page.image_widths), page.image_widths
@@ -190,8 +190,10 @@ def test_a_batch_with_a_failed_mission(tmp_path: Path, capsys: pytest.CaptureFix
     rows = {r["mission"]: r for r in pq.read_table(out / "missions.parquet").to_pylist()}
     assert rows["sample"]["worst_drift_mm"] is None  # one slab: not measured, never 0.0 in the site index
     assert data["site"] == data["site"] | {"kind": "batch", "missions": 2, "failed": 1}
-    text = _chromium_ok(out / "report.html")
+    pdf = tmp_path / "site.pdf"
+    text = _chromium_ok(out / "report.html", pdf=pdf)  # and printed to PDF, as a field team would
     assert "point-cloud topic" in text
+    assert pdf.read_bytes()[:5] == b"%PDF-" and pdf.stat().st_size > 20_000
 
 
 def test_bad_input_is_one_line_naming_the_file(
