@@ -4,6 +4,7 @@ that would save nothing, closing hints last with commands that work as printed, 
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import pty
 import select
@@ -14,6 +15,7 @@ import sys
 import termios
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from aftershock.pipeline.cli import main
@@ -78,3 +80,45 @@ def test_help_has_no_bool_tags(command: list[str], capsys: pytest.CaptureFixture
     assert main([*command, "--help"]) == 0
     out = capsys.readouterr().out
     assert "--help" in out and "<bool>" not in out
+
+
+def _slabs_and_walls(seed: int) -> np.ndarray:
+    """Two 10 x 8 m slabs 3 m apart, the upper one shifted 10 mm, with walls between."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform([-5, -4], [5, 4], size=(40000, 2))
+    z, t, side = rng.uniform(0, 3.0, 60000), rng.uniform(-1, 1, 60000), rng.integers(0, 4, 60000)
+    x = np.where(side < 2, np.where(side == 0, -5.0, 5.0), t * 5)
+    y = np.where(side < 2, t * 4, np.where(side == 2, -4.0, 4.0))
+    return np.vstack([np.c_[xy, np.zeros(len(xy))], np.c_[xy + 0.01, np.full(len(xy), 3.0)], np.c_[x, y, z]])
+
+
+def test_drift_saves_a_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from rrd_read import read_rrd
+
+    from aftershock.pipeline.cloud_io import write_cloud
+    from aftershock.pipeline.types import LabelledCloud
+    from aftershock.sinks import rerun_blueprint as L
+
+    cloud = write_cloud(tmp_path / "two.ply", LabelledCloud(_slabs_and_walls(0)))
+    rrd = tmp_path / "drift.rrd"
+    assert main(["drift", str(cloud), "--save", str(rrd)]) == 0
+    out = capsys.readouterr().out
+    assert out.strip().splitlines()[-1].endswith(str(rrd))  # the hint last
+    rec = read_rrd(rrd)
+    assert {f"{L.STORIES}/s0", f"{L.STORIES}/s1", L.DRIFT} <= rec.entities and rec.under(L.MAP)
+    assert main(["drift", str(cloud), "--save", str(rrd)]) == 2  # no overwrite without --force
+    assert str(rrd) in capsys.readouterr().err
+    assert main(["drift", str(cloud), "--save", str(cloud), "--force"]) == 2  # never the input
+
+
+def test_cracks_saves_a_recording(crack_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from rrd_read import read_rrd
+
+    from aftershock.sinks import rerun_blueprint as L
+
+    rrd = tmp_path / "cracks.rrd"
+    assert main(["cracks", str(crack_dir / "column4.ply"), "--save", str(rrd), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["recording"] == str(rrd) and data["cracks"]
+    rec = read_rrd(rrd)
+    assert L.CRACKS in rec.entities and L.CRACK_POINTS in rec.entities and rec.under(L.MAP)
