@@ -1,5 +1,6 @@
 """A plan view per storey: the labelled map seen from above (ceilings left out, higher points drawn over lower
-ones), the trajectory, the structural elements (the structure model's, else the map's columns), every
+ones), the trajectory, the structural elements (the structure model's columns, beams and walls, else the
+map's columns), every
 finding marked with its number, and a legend of the classes drawn. Returns PNG bytes (matplotlib, Agg)."""
 
 from __future__ import annotations
@@ -25,13 +26,16 @@ FINDING_COLOURS: Final = {
 DPI: Final = 100
 
 
-def _element_boxes(m: MissionData, sel: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """(label, xy min, xy max) of the structural elements to outline: the structure model's elements, or the
-    map's column objects."""
-    out: list[tuple[str, np.ndarray, np.ndarray]] = []
+def _elements(m: MissionData, sel: np.ndarray) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """(kind, label, xy min, xy max) of the structural elements to draw: the structure model's columns, beams
+    and walls (slabs are the plan's own ground), or the map's column objects."""
+    out: list[tuple[str, str, np.ndarray, np.ndarray]] = []
     elements = (m.structure or {}).get("elements")
     if isinstance(elements, list):
         for e in elements:
+            kind = str(e.get("kind", ""))
+            if kind not in ("column", "beam", "wall"):
+                continue
             ext = e.get("extent")
             try:
                 if isinstance(ext, dict):
@@ -41,7 +45,7 @@ def _element_boxes(m: MissionData, sel: np.ndarray) -> list[tuple[str, np.ndarra
                     lo, hi = flat[:3], flat[3:6]
             except (TypeError, ValueError, KeyError, IndexError):
                 continue
-            out.append((f"{e.get('kind', '?')} {e.get('id', '')}".strip(), lo[:2], hi[:2]))
+            out.append((kind, f"{kind[0].upper()}{e.get('id', '')}", lo[:2], hi[:2]))
         return out
     cloud = m.cloud
     if cloud is None or cloud.instance_ids is None or cloud.class_ids is None:
@@ -51,7 +55,7 @@ def _element_boxes(m: MissionData, sel: np.ndarray) -> list[tuple[str, np.ndarra
     pts = cloud.points[col, :2]
     for k, i in enumerate(np.unique(ids)):  # one outline per column object
         p = pts[ids == i]
-        out.append((f"C{k + 1}", p.min(axis=0), p.max(axis=0)))
+        out.append(("column", f"C{k + 1}", p.min(axis=0), p.max(axis=0)))
     return out
 
 
@@ -81,8 +85,12 @@ def draw_plan(
         colours = np.where(known[:, None], CLASS_COLORS[np.minimum(cls, NUM_CLASSES - 1)], 40) / 255.0
         ax.scatter(cloud.points[idx, 0], cloud.points[idx, 1], c=colours, s=2.0, marker="s", linewidths=0)
         drawn = sorted(set(cls[known].tolist()))
-    for label, lo, hi in _element_boxes(m, sel):
-        ax.add_patch(Rectangle(tuple(lo), *(hi - lo), fill=False, ec="black", lw=1.2))
+    for kind, label, lo, hi in _elements(m, sel):
+        if kind == "wall":  # a wall's extent is a thin box along it: drawn as its line
+            ax.plot([lo[0], hi[0]], [lo[1], hi[1]], color="black", lw=1.0, alpha=0.6)
+            continue
+        style = "-" if kind == "column" else "--"
+        ax.add_patch(Rectangle(tuple(lo), *(hi - lo), fill=False, ec="black", lw=1.2, ls=style))
         ax.annotate(label, tuple(hi), fontsize=7, xytext=(2, 2), textcoords="offset points")
     if len(m.poses):
         xy = m.poses[:, 1:3]
