@@ -80,6 +80,7 @@ CRACK_RADIUS: Final = rr.Radius.ui_points(3.0)
 TRAJECTORY_COLOR: Final = (255, 210, 0)
 GROWTH_INLIER_COLOR: Final = (60, 220, 90)
 GROWTH_NEIGHBOUR_COLOR: Final = (255, 200, 40)
+LABEL_CLEARANCE_M: Final = 0.3  # a crack this close to a fully labelled one gets its number only
 CRACK_COLOR: Final = (255, 30, 60)
 MILD_CRACK_COLOR: Final = (255, 150, 0)
 
@@ -737,7 +738,16 @@ def _quaternion_to_z(normal: np.ndarray) -> np.ndarray:
 def _crack_boxes(cracks: list[Crack]) -> rr.Boxes3D:
     """One box per crack: long side along its axis, short side across it in the surface, thin along the normal."""
     centers, half_sizes, quats, labels, colors = [], [], [], [], []
-    for c in cracks:
+    # Labels would pile up where cracks cluster: the longest of a cluster carries the full label, the others
+    # within LABEL_CLEARANCE_M of a labelled one just their number (all in the damage report).
+    order = sorted(range(len(cracks)), key=lambda k: (-cracks[k].severe, -cracks[k].length_m))
+    full: set[int] = set()
+    placed: list[np.ndarray] = []
+    for k in order:
+        if all(np.linalg.norm(cracks[k].center - p) >= LABEL_CLEARANCE_M for p in placed):
+            full.add(k)
+            placed.append(cracks[k].center)
+    for k, c in enumerate(cracks):
         axis = c.axis / max(np.linalg.norm(c.axis), 1e-12)
         normal = c.normal - axis * float(np.dot(c.normal, axis))
         normal /= max(np.linalg.norm(normal), 1e-12)
@@ -746,8 +756,7 @@ def _crack_boxes(cracks: list[Crack]) -> rr.Boxes3D:
         centers.append(c.center)
         half_sizes.append([c.length_m / 2, max(c.width_m / 2, 0.002), 0.003])
         severity = "severe" if c.severe else "hairline"
-        labels.append(
-            f"crack {c.instance_id}: {c.length_m * 100:.1f} cm long, {c.width_m * 1000:.1f} mm wide ({severity})"
-        )
+        text = f"crack {c.instance_id}: {c.length_m * 100:.1f} cm long, {c.width_m * 1000:.1f} mm wide ({severity})"
+        labels.append(text if k in full else f"crack {c.instance_id}")
         colors.append(CRACK_COLOR if c.severe else MILD_CRACK_COLOR)
     return rr.Boxes3D(centers=centers, half_sizes=half_sizes, quaternions=quats, labels=labels, colors=colors)
