@@ -116,3 +116,21 @@ def test_the_default_layout_opens_on_the_site_with_a_plan_and_the_legend() -> No
     assert plan.name.startswith("plan") and isinstance(legend, rrb.Spatial2DView) and legend.origin == L.LEGEND
     kinds = [type(v).__name__ for v in engineering.contents]
     assert kinds == ["TimeSeriesView", "TimeSeriesView", "TextLogView"]
+
+
+def test_crack_labels_do_not_pile_up(tmp_path: Path) -> None:
+    """Two cracks 10 cm apart and one far away: the severe one of the pair and the far one carry full labels,
+    the other of the pair its number only."""
+    from aftershock.pipeline.types import Crack
+
+    def crack(i: int, at: tuple[float, float, float], length: float, severe: bool) -> Crack:
+        return Crack(i, np.array(at), length, 0.004, 50, np.array([0, 0, 1.0]), np.array([1.0, 0, 0]), severe)
+
+    path = tmp_path / "cracks.rrd"
+    sink = RerunSink(path, False, None, RerunConfig())
+    sink.damage(
+        [crack(1, (0, 0, 1), 0.2, False), crack(2, (0, 0, 1.1), 0.1, True), crack(3, (0, 0, 3), 0.3, False)], None, []
+    )
+    sink.close()
+    labels = read_rrd(path).texts(L.CRACKS, "Boxes3D:labels", static=True)
+    assert labels[0] == "crack 1" and labels[1].startswith("crack 2: 10.0 cm long") and "wide" in labels[2]
