@@ -66,10 +66,10 @@ def legend() -> tuple[rr.Points2D, rr.Points2D]:
     """The legend: a coloured disc per class (and unlabelled), in class order down columns, and beside each its
     name in white (a label takes its point's colour, which on some discs would not read)."""
     names = [*CLASS_NAMES, "unlabelled"]
-    colours = np.vstack([CLASS_COLORS, UNLABELLED_COLOR[None]])
+    colors = np.vstack([CLASS_COLORS, UNLABELLED_COLOR[None]])
     k = np.arange(len(names))
     at = np.c_[(k // LEGEND_ROWS) * LEGEND_COLUMN_STEP, k % LEGEND_ROWS].astype(np.float64)
-    discs = rr.Points2D(at, colors=colours, radii=0.4)
+    discs = rr.Points2D(at, colors=colors, radii=0.4)
     text = rr.Points2D(at + np.array([2.0, -0.45]), colors=[235, 235, 235], radii=0.01, labels=names, show_labels=True)
     return discs, text
 

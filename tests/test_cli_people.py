@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from aftershock.pipeline.cli import main
-from aftershock.pipeline.commands.run import SAMPLE
+from aftershock.pipeline.mission import SAMPLE
 
 CLI = [sys.executable, "-m", "aftershock.pipeline"]
 ENV = os.environ | {"CI": "true", "RERUN_ANALYTICS": "0", "OMP_NUM_THREADS": "1"}

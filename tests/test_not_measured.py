@@ -13,9 +13,9 @@ from rrd_read import read_rrd
 
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
-from aftershock.pipeline.commands.run import SAMPLE
 from aftershock.pipeline.config import DriftConfig, RerunConfig
 from aftershock.pipeline.damage.drift import measure_drift
+from aftershock.pipeline.mission import SAMPLE
 from aftershock.pipeline.types import LabelledCloud
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks.rerun_sink import RerunSink
@@ -95,8 +95,8 @@ def test_the_legend_names_every_class_in_its_colour(tmp_path: Path) -> None:
     rec = read_rrd(path)
     names = rec.texts(L.LEGEND_NAMES, "Points2D:labels", static=True)
     assert names == [*CLASS_NAMES, "unlabelled"]
-    [colours] = rec.rows(L.LEGEND_SWATCHES, "Points2D:colors", static=True)
-    rgba = np.array(colours, dtype=np.uint32)
+    [colors] = rec.rows(L.LEGEND_SWATCHES, "Points2D:colors", static=True)
+    rgba = np.array(colors, dtype=np.uint32)
     rgb = np.stack([(rgba >> 24) & 255, (rgba >> 16) & 255, (rgba >> 8) & 255], axis=1)
     assert np.array_equal(rgb[: len(CLASS_NAMES)], CLASS_COLORS)
 

@@ -28,7 +28,7 @@ def test_every_two_classes_are_clearly_distinct() -> None:
         print(f"ΔE76 {d:.1f}: {a} / {b}")
     assert pairs[0][0] >= MIN_DELTA_E, pairs[0]
     against = {"background": BACKGROUND, "unlabelled": UNLABELLED_COLOR}
-    for what, colour in against.items():
-        d = np.linalg.norm(lab - cie_lab(colour), axis=1)
+    for what, color in against.items():
+        d = np.linalg.norm(lab - cie_lab(color), axis=1)
         print(f"ΔE76 {d.min():.1f}: {CLASS_NAMES[int(d.argmin())]} / {what}")
         assert d.min() >= MIN_DELTA_E, what

@@ -18,8 +18,8 @@ import pytest
 
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
-from aftershock.pipeline.commands.run import SAMPLE
 from aftershock.pipeline.config import ReportConfig
+from aftershock.pipeline.mission import SAMPLE
 from aftershock.pipeline.types import LabelledCloud
 
 CLI = [sys.executable, "-m", "aftershock.pipeline"]

@@ -11,7 +11,7 @@ from aftershock.pipeline.report.build import Report
 
 NOT_MEASURED: Final = "not measured"
 STATUS_TEXT: Final = {"found": "evidence found", "none": "nothing found", "not_assessable": "not assessable"}
-POSTING_COLOUR: Final = {"inspected": "#2e7d32", "restricted use": "#f9a825", "unsafe": "#c62828"}
+POSTING_COLOR: Final = {"inspected": "#2e7d32", "restricted use": "#f9a825", "unsafe": "#c62828"}
 
 CSS: Final = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1150px;
@@ -57,10 +57,10 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
 def _posting(p: dict[str, Any] | None) -> str:
     if p is None:
         return ""
-    colour = POSTING_COLOUR.get(p["suggested"], "#555")
+    color = POSTING_COLOR.get(p["suggested"], "#555")
     reasons = "; ".join(escape(r) for r in p["reasons"])
     return (
-        f'<p>Suggested posting (advisory): <span class="posting" style="background:{colour}">'
+        f'<p>Suggested posting (advisory): <span class="posting" style="background:{color}">'
         f"{escape(p['suggested'])}</span></p><p>Because: {reasons}.</p>"
         f'<p class="small">Rule: {escape(p["rule"])}.</p>'
     )
@@ -194,8 +194,8 @@ def render(report: Report) -> str:
         f'"{NOT_MEASURED}" or "not assessable", never as zero.</div>'
     )
     if worst:
-        colour = POSTING_COLOUR.get(worst, "#555")
-        head += f'<p>Site, worst mission: <span class="posting" style="background:{colour}">{escape(worst)}</span></p>'
+        color = POSTING_COLOR.get(worst, "#555")
+        head += f'<p>Site, worst mission: <span class="posting" style="background:{color}">{escape(worst)}</span></p>'
     site_table = '<h2 class="first">Missions</h2>' + _table(
         ["mission", "status", "started (UTC)", "duration", "path", "scans", "sensor, what was run", "posting"], rows
     )

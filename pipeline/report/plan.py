@@ -16,7 +16,7 @@ from aftershock.pipeline.report.assess import storey_of
 from aftershock.pipeline.report.gather import MissionData
 
 LEFT_OUT: Final = (SemanticClass.CEILING,)  # seen from above, the ceiling would hide the storey
-FINDING_COLOURS: Final = {
+FINDING_COLORS: Final = {
     "crack": "#e6194b",
     "debris": "#f58231",
     "exit": "#ffe119",
@@ -82,8 +82,8 @@ def draw_plan(
         idx = idx[np.argsort(cloud.points[idx, 2], kind="stable")]  # higher points over lower ones
         cls = cloud.class_ids[idx].astype(np.int64)
         known = cls < NUM_CLASSES
-        colours = np.where(known[:, None], CLASS_COLORS[np.minimum(cls, NUM_CLASSES - 1)], 40) / 255.0
-        ax.scatter(cloud.points[idx, 0], cloud.points[idx, 1], c=colours, s=2.0, marker="s", linewidths=0)
+        colors = np.where(known[:, None], CLASS_COLORS[np.minimum(cls, NUM_CLASSES - 1)], 40) / 255.0
+        ax.scatter(cloud.points[idx, 0], cloud.points[idx, 1], c=colors, s=2.0, marker="s", linewidths=0)
         drawn = sorted(set(cls[known].tolist()))
     for kind, label, lo, hi in _elements(m, sel):
         if kind == "wall":  # a wall's extent is a thin box along it: drawn as its line
@@ -101,8 +101,8 @@ def draw_plan(
     unplaced = [f for f in findings if f["storey"] == storey and f["position"] is None]
     for k, f in enumerate(placed):
         x, y = f["position"][0], f["position"][1]
-        colour = FINDING_COLOURS.get(f["kind"], "#e6194b")
-        ax.plot(x, y, marker="o", ms=17, mfc=colour, mec="black", mew=1.2, ls="none", zorder=5)
+        color = FINDING_COLORS.get(f["kind"], "#e6194b")
+        ax.plot(x, y, marker="o", ms=17, mfc=color, mec="black", mew=1.2, ls="none", zorder=5)
         ax.annotate(str(f["number"]), (x, y), ha="center", va="center", fontsize=9, weight="bold", zorder=6)
         # labels fan out round the marker so that neighbouring findings do not overlap
         angle = 2 * np.pi * k / max(len(placed), 1)
