@@ -522,7 +522,7 @@ def checklist_and_findings(
         text = f"debris share of the floor: {shares} (partial collapse from {cfg.collapse_debris_share:.0%})"
         items.append(_item("collapse or partial collapse", NONE, text, [_where(m, ENTITY_MAP)]))
     else:
-        why = next((d.get("reason") for d in deb if d.get("reason")), "no floor seen")
+        why = str(next((d.get("reason") for d in deb if d.get("reason")), "no floor seen"))
         items.append(_item("collapse or partial collapse", NOT_ASSESSABLE, why))
     # Building or storey leaning: drift ratio per storey
     drifted = [s for s in levels if s["drift_ratio"] is not None]
