@@ -22,7 +22,7 @@ import numpy as np
 
 from aftershock.pipeline.config import Config, RerunConfig, load_config
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.progress import enabled
+from aftershock.pipeline.progress import enabled, working
 from aftershock.pipeline.sink import Sink
 from aftershock.pipeline.stream import StreamResult, run_stream
 from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Scan, SourceReport, Story
@@ -186,7 +186,7 @@ def run_source(
     `batch` calls this once per mission inside a Ray task (with `extra_sinks` reporting progress)."""
     notice = notice or (lambda t: print(f"aftershock: {t}", file=sys.stderr))
     scans, info = open_scans(source, cfg, quiet)
-    on_demand = OnDemand(cfg, refine, damage, region, notice) if refine or damage else None
+    on_demand = OnDemand(cfg, refine, damage, region, notice, quiet) if refine or damage else None
     o = outputs
     sinks = make_sinks(
         cfg, o.save, o.spawn, o.connect, o.mcap_out, o.export, o.force, refine, damage, input_files(source)
@@ -252,6 +252,7 @@ class OnDemand:
     damage: bool
     region: np.ndarray | None
     notice: Callable[[str], None]
+    quiet: bool = False  # no progress line on a terminal
     results: dict[str, Any] = field(default_factory=dict)
     net: Any = None
 
@@ -278,7 +279,8 @@ class OnDemand:
 
         self.notice(f"refining {len(cloud)} map points with LRGNet ({self.cfg.lrgnet.search})")
         t0 = perf_counter()
-        result = refine_cloud(cloud, self.cfg.lrgnet, record_object=1, net=self.net)
+        with working("refining with LRGNet", show=enabled(self.quiet)):
+            result = refine_cloud(cloud, self.cfg.lrgnet, record_object=1, net=self.net)
         refined = LabelledCloud(cloud.points, cloud.colors, cloud.intensity, cloud.class_ids, result.instance_ids)
         for sink in sinks:
             sink.refined(refined, result.steps)
@@ -296,7 +298,8 @@ class OnDemand:
 
         self.notice(f"assessing damage on {len(cloud)} map points")
         t0 = perf_counter()
-        report = assess_damage(cloud, self.cfg)
+        with working("assessing damage", show=enabled(self.quiet)):
+            report = assess_damage(cloud, self.cfg)
         data = report.to_json()
         data["seconds"] = round(perf_counter() - t0, 3)
         for sink in sinks:
