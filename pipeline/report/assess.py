@@ -450,7 +450,9 @@ def _crack_entry(c: dict[str, Any], element: str) -> dict[str, Any]:
         "position": c.get("position"),
         "length_m": _num(c.get("length_m")),
         "width_m": _num(c.get("width_m")) if resolved else None,
-        "width_text": f"{c['width_m'] * 1000:.1f} mm" if resolved else "narrower than the point spacing",
+        "width_text": f"{c['width_m'] * 1000:.1f} mm"
+        if resolved
+        else "present, width not measurable (narrower than the scan resolves here)",
         "severity": "severe" if c.get("severe") else "minor",
         "resolvable_mm": c.get("resolvable_mm"),  # the narrowest width the scan resolves at this crack
     }
