@@ -219,6 +219,7 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
         "trajectory": result.trajectory.as_dict() if result.trajectory else None,
         "outputs": outputs,
+        "warnings": s.warnings,  # said once per run and reason: scans outside the networks' training data
     }
     return out
 

@@ -66,6 +66,8 @@ def print_human(result: StreamResult, outputs: dict[str, str], info: RunInfo | N
         print(f"skipped {s.skipped_messages} messages that could not be decoded (see the warnings)")
     if s.damage:
         print(f"the log ended early: {s.damage}")
+    for text in s.warnings:
+        print(f"warning: {text}")
 
 
 def program() -> str:
