@@ -238,7 +238,8 @@ LRGNET_MODE_DEFAULTS: Final[dict[bool, dict[str, float]]] = {
 class CrackConfig(_Section):
     resolution_m: Positive | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
     features: str = "shade+crackembed"  # best balance of real elements and unseen simulated ones (bench_cracks)
-    detector: str = "isolation-forest"  # "ridge" (issue 30) did not beat it left out on the real elements (round C)
+    # "ridge" and "region" (issue 30) did not beat it left out on the real elements (ridge round C, region round R1)
+    detector: str = "isolation-forest"
     neighbourhood_m: Positive = 0.01
     shade_cell_m: NonNegative = (
         0.0  # shade: darkness against the mean of the 3 x 3 x 3 block of these voxels (0 = median)
@@ -307,6 +308,19 @@ class CrackConfig(_Section):
     ridge_straight_width_m: NonNegative = 0.0
     ridge_rim: bool = True  # at a face's rim (one side off the face) the other side alone is the reference
     ridge_member_z: NonNegative = 1.0  # a region's crack points: darker than around by this many robust sigmas
+    # detector "region" (damage/region.py): damaged regions on each face's orthoimages, evidence channels in robust
+    # z-scores of the face's own surface; chosen in bench_cracks_region (region_high calibrated on simulated intact
+    # elements only, the rest leave-one-out on the real elements); docs/benchmarks/cracks.md
+    # round R1: best on the four real elements (raw-mask F1: slab2 only, the columns 0); it did not transfer
+    region_channels: tuple[str, ...] = ("dark", "rough", "deficit")
+    region_scales_m: tuple[float, ...] = (0.02, 0.04, 0.08)
+    region_combine: Literal["sum", "max"] = "sum"
+    region_high: Positive = 17.0  # a region's peak evidence (90th percentile, robust sigmas) reaches this
+    region_gate_ratio: Positive = 1.25  # an element has cracks only if some region's peak reaches high x this
+    region_low_ratio: Fraction = 0.5
+    region_smooth_m: NonNegative = 0.01
+    region_open_m: NonNegative = 0.04  # evidence narrower than this (a joint's groove, a line) is no region; 0 = off
+    region_min_area_m2: NonNegative = 0.002
     element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...
     element_radius_m: Positive = 0.1  # ... joining neighbours within this distance ...
     element_angle_deg: Angle = 20.0  # ... whose normals differ by less than this ...
