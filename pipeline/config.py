@@ -355,6 +355,30 @@ class DriftConfig(_Section):
     seed: Seed = 0
 
 
+class ReportConfig(_Section):
+    """Limits `aftershock report` flags against (advisory: an engineer decides). Drift limits are residual
+    inter-storey drift ratios after FEMA P-58-1 (2012), Appendix C, residual drift damage states: 0.5 %
+    (1/200) realignment of the frame required, 1 % (1/100) major realignment, possibly not practical."""
+
+    drift_restricted_ratio: Annotated[float, Field(gt=0, lt=1)] = 1 / 200
+    drift_unsafe_ratio: Annotated[float, Field(gt=0, lt=1)] = 1 / 100
+    # Slab tilt flagged at the same slopes (an assumption of this tool, not a published limit)
+    tilt_restricted_deg: Annotated[float, Field(gt=0, le=90)] = 0.29  # atan(1/200)
+    tilt_unsafe_deg: Annotated[float, Field(gt=0, le=90)] = 0.57  # atan(1/100)
+    # Storeys are re-measured on the map with up from the lowest slab: `run` levels a map from its first scan,
+    # and on 2 drift frames (missing-slab 5, partial-collapse 6) that left 8-9 mm per storey, 0.3-2.6 mm with this
+    drift_gravity: Literal["ground-plane", "frame-z"] = "ground-plane"
+    # Worst drift error per storey on those frames through run (2.6 mm; measure_drift alone: 1.90 mm, README)
+    drift_uncertainty_mm: Positive = 3.0
+    # With drift_gravity frame-z: how far a levelled map's up may be off (0.31° seen on a drift frame)
+    level_uncertainty_deg: Annotated[float, Field(ge=0, le=10)] = 0.35
+    min_storey_height_m: Positive = 2.0  # slabs closer than this: the upper one is furniture or a platform
+    collapse_debris_share: Fraction = 0.25  # debris over this share of a storey's floor: partial collapse
+    exit_clearance_m: Positive = 1.0  # debris within this of a door blocks it
+    plan_cell_m: Positive = 0.1  # grid of the debris volume and floor area
+    plan_points: Count = 150_000  # most map points drawn per plan view
+
+
 class Config(_Section):
     source: SourceConfig = SourceConfig()
     registration: RegisterConfig = RegisterConfig()
@@ -366,6 +390,7 @@ class Config(_Section):
     lrgnet: LRGNetConfig = LRGNetConfig()
     cracks: CrackConfig = CrackConfig()
     drift: DriftConfig = DriftConfig()
+    report: ReportConfig = ReportConfig()
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:

@@ -205,18 +205,21 @@ class Crack:
 
 @dataclass(slots=True)
 class Story:
-    """One floor or ceiling plane and how far it moved against the lowest plane."""
+    """One floor or ceiling plane and how far it moved against the lowest plane. Drift and tilt are None where
+    they were not measured (one slab alone has nothing to be measured against), and `reason` says why; the
+    lowest of several slabs is the reference (0 by definition, `reason` says so)."""
 
     index: int
     height_m: float
     plane: np.ndarray  # (4,) a, b, c, d with unit normal, ax + by + cz + d = 0
-    drift_x_mm: float
-    drift_y_mm: float
-    drift_mm: float
-    tilt_x_deg: float
-    tilt_y_deg: float
-    tilt_deg: float
+    drift_x_mm: float | None
+    drift_y_mm: float | None
+    drift_mm: float | None
+    tilt_x_deg: float | None
+    tilt_y_deg: float | None
+    tilt_deg: float | None
     num_points: int
+    reason: str | None = None
 
 
 @dataclass(slots=True)

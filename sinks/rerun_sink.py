@@ -124,6 +124,9 @@ class RerunSink(Sink):
         log_topic = self._info.topic if self._info.raw_in_log else None
         self.out.start(L.default_blueprint(log_topic=log_topic))
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, C.annotation_context(), static=True)
+        discs, names = L.legend()
+        self.rec.log(L.LEGEND_SWATCHES, discs, static=True)
+        self.rec.log(L.LEGEND_NAMES, names, static=True)
 
     def stage(self, frame: Frame, stage: Stage) -> None:
         self._start()
@@ -180,9 +183,11 @@ class RerunSink(Sink):
             self.rec.log(L.CRACKS, C.crack_boxes(cracks), static=static)
         if stories:
             planes, arrows = C.story_layers(stories, self._tiles.bounds)
-            for index, box in planes:
+            for index, box, tag in planes:
                 self.rec.log(f"{L.STORIES}/s{index}", box, static=static)
-            self.rec.log(L.DRIFT, arrows, static=static)
+                self.rec.log(f"{L.STORIES}/s{index}/label", tag, static=static)
+            if arrows is not None:
+                self.rec.log(L.DRIFT, arrows, static=static)
 
     def merges(self, merges: list[InstanceMerge], seq: int) -> None:
         for m in merges:

@@ -27,6 +27,8 @@ from aftershock.pipeline.types import Story
 _MIN_SLAB_POINTS: Final = 50
 _RANSAC_SCORE_POINTS: Final = 4000  # hypotheses are scored on a sample; the winner is refined on all points
 _MIN_END_POINTS: Final = 20  # points in the window next to a wall's foot or head
+NOT_MEASURED_ONE_SLAB: Final = "one slab found: drift and tilt need a second slab to be measured against"
+REFERENCE_SLAB: Final = "the lowest slab: the reference the other slabs' drift and tilt are measured against"
 
 
 class Gravity(StrEnum):
@@ -360,7 +362,7 @@ def _thicknesses(slabs: list[list[_Surface]], centre: np.ndarray) -> np.ndarray:
 
 def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     """Stories (lowest first) of a structure: each slab plane with its drift (mm) and tilt (°) against the
-    lowest plane. Fewer than two slabs gives the slabs found with zero drift, and a note."""
+    lowest plane. One slab alone comes back with drift and tilt None and its `reason`, and a note."""
     gravity = Gravity(cfg.gravity)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     notes: list[str] = []
@@ -443,4 +445,11 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
                 num_points=sum(s.points for s in surfaces),
             )
         )
+    if len(stories) == 1:  # one slab alone: nothing was measured, which is not a drift of 0
+        only = stories[0]
+        only.drift_x_mm = only.drift_y_mm = only.drift_mm = None
+        only.tilt_x_deg = only.tilt_y_deg = only.tilt_deg = None
+        only.reason = NOT_MEASURED_ONE_SLAB
+    elif stories:
+        stories[0].reason = REFERENCE_SLAB
     return DriftResult(stories, gravity.value, bands, notes)
