@@ -30,7 +30,9 @@ VOCABULARY: Final = (
 )
 STAGES: Final = tuple(
     f"pipeline.{m}"
-    for m in ("register", "level", "voxel_map", "label", "labellers", "cluster", "refine", "damage", "trajectory")
+    for m in (
+        "register", "level", "voxel_map", "label", "labellers", "cluster", "refine", "damage", "structure", "trajectory"
+    )
 )
 
 

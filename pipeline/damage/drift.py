@@ -52,6 +52,14 @@ def slab_bands(
     lo = float(z.min())
     edges = lo + bin_m * np.arange(int(np.ceil((z.max() - lo) / bin_m)) + 2)
     counts, _ = np.histogram(z, bins=edges)
+    return bands_of_counts(counts, edges, ratio, neighbourhood, merge_m)
+
+
+def bands_of_counts(
+    counts: np.ndarray, edges: np.ndarray, ratio: float, neighbourhood: int, merge_m: float
+) -> list[tuple[float, float]]:
+    """`slab_bands` of a height histogram (`counts` per bin between `edges`): the one test of a story slab,
+    shared by drift and the structure model (which keeps its histogram up to date as the map grows)."""
     size = 2 * (neighbourhood // 2) + 1
     local = median_filter(counts.astype(np.float64), size=size, mode="constant", cval=0.0)
     # Around an empty stretch the median is 0; a slab then needs at least the median of all non-empty bins.
