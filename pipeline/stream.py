@@ -36,13 +36,15 @@ from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, 
 from aftershock.pipeline.labellers.oracle import TruthStandIn
 from aftershock.pipeline.register import MIN_POINTS, guess_environment, make_registrar, register_stage
 from aftershock.pipeline.sink import Sink, Stage
+from aftershock.pipeline.structure import StructureModel
+from aftershock.pipeline.structure.stage import structure_stage
 from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
 from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan
 from aftershock.pipeline.voxel_map import VoxelMap
 
 log = logging.getLogger(__name__)
 
-STAGES: tuple[str, ...] = ("source", "register", "label", "cluster", "sinks")
+STAGES: tuple[str, ...] = ("source", "register", "label", "structure", "cluster", "sinks")
 
 
 @dataclass(slots=True)
@@ -57,6 +59,7 @@ class StreamResult:
     true_poses: np.ndarray | None  # (F, 4, 4), NaN for frames without one; None when (almost) none had one
     trajectory: TrajectoryError | None
     notes: list[str] = field(default_factory=list)
+    structure: StructureModel | None = None  # the building's elements (None: `structure.enabled` off)
 
 
 def _first_usable(scans: Iterator[Scan], source: str) -> tuple[list[Scan], Scan]:
@@ -285,10 +288,13 @@ def _run(
         registered = _ahead(registered, cfg.stream.ahead)
     # The raw scan goes to the sinks after its registration (which leaves it as it is): all on this thread.
     frames = _tap(_tap(registered, sinks, Stage.RAW), sinks, Stage.REGISTERED)
-    frames = _tap(label_stage(frames, vmap, labeller, labelling_range(cfg, environment)), sinks, Stage.LABELLED)
+    structure = StructureModel(cfg.structure, environment, vmap.voxel_size) if cfg.structure.enabled else None
+    labelled = label_stage(frames, vmap, labeller, labelling_range(cfg, environment))
+    frames = _tap(structure_stage(labelled, vmap, structure), sinks, Stage.LABELLED)
     frames = _tap(cluster_stage(frames, vmap, clusterer), sinks, Stage.CLUSTERED)
 
     summary = RunSummary()
+    notes: list[str] = []
     seqs: list[int] = []
     stamps: list[int] = []
     poses: list[np.ndarray] = []
@@ -331,6 +337,14 @@ def _run(
         error: BaseException | None = output_error
         if seqs:
             merges, changed = consolidate(vmap, clusterer, labeller, seqs[-1], summary)
+            if structure is not None:  # every changed region refitted, and the fused classes over the votes
+                structure.finish(vmap)
+                structure.apply(vmap)
+                changed = True
+                warning = structure.warning()
+                if warning:
+                    notice(warning)
+                    notes.append(warning)
             if changed:
                 last_map_seq = None  # the map changed: the sinks get it again below
             for sink in sinks:
@@ -381,6 +395,8 @@ def _run(
         poses=pose_arr,
         true_poses=truth,
         trajectory=trajectory,
+        notes=notes,
+        structure=structure,
     )
 
 

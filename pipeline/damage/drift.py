@@ -97,6 +97,8 @@ def ransac_plane(
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(normals, axis=1)
     good = norm > 1e-12
+    if not good.any():  # every triple drawn lies on one line: no plane to find
+        return np.array([0.0, 0.0, 1.0, 0.0]), np.zeros(n, bool)
     normals, tri = normals[good] / norm[good, None], tri[good]
     d = -np.einsum("ij,ij->i", normals, tri[:, 0])
     sample = points[rng.choice(n, size=min(n, _RANSAC_SCORE_POINTS), replace=False)]

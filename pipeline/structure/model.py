@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from itertools import pairwise
+from time import perf_counter
 from typing import Final
 
 import numpy as np
@@ -38,8 +40,10 @@ from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 log = logging.getLogger(__name__)
 
 _HIST_BINS: Final = 1 << 13  # height histogram: enough bins for +-200 m at 5 cm
-_SLAB_SAMPLE: Final = 20000  # a slab plane is fitted on at most this many voxels of its band
+_SLAB_SAMPLE: Final = 5000  # a slab plane is fitted on at most this many voxels of its band
 _RANSAC_ITERATIONS: Final = 300
+_WALL_ITERATIONS: Final = 120  # a tile's few thousand voxels hold a handful of planes
+_CREDIT_SCANS: Final = 10  # unspent refit time carries over for at most this many scans
 _WALL_PLANES: Final = 6  # vertical planes tried per tile
 _WALL_VERTICAL: Final = 0.15  # |n_z| under this: a vertical plane
 _WALL_GAP_M: Final = 0.5  # pieces of one wall leave gaps no wider than this (doors are found as openings)
@@ -62,6 +66,7 @@ class _Slab:
     lo: np.ndarray
     hi: np.ndarray
     fitted_count: int  # voxels in its band when last fitted
+    voxels: int = 0  # on its plane when fitted
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
         return -(xy @ self.plane[:2] + self.plane[3]) / self.plane[2]
@@ -124,6 +129,7 @@ class StructureModel:
         self.ground_keys = KeyTable()
         self.ground_min = np.zeros(0, np.float64)
         self.next_id = 1
+        self.credit_ms = 0.0  # refit time this scan may still spend (amortised budget)
         self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
         self.last_tiles: list[tuple[int, int]] = []
 
@@ -197,7 +203,7 @@ class StructureModel:
             self.hist_base = int(np.median(zb)) - _HIST_BINS // 2
         zb = np.clip(zb - self.hist_base, 0, _HIST_BINS - 1)
         self.zbin[rows] = zb
-        self.hist += np.bincount(zb, minlength=_HIST_BINS)
+        np.add.at(self.hist, zb, 1)
         txy = np.floor(pos[:, :2] / self.cfg.tile_m).astype(np.int64)
         keys = pack_keys(np.c_[txy, np.zeros(len(txy), np.int64)])
         uniq, inv = np.unique(keys, return_inverse=True)
@@ -213,7 +219,7 @@ class StructureModel:
         self.tile_of[rows] = tile
         order = np.argsort(tile, kind="stable")
         bounds = np.r_[0, np.flatnonzero(np.diff(tile[order])) + 1, len(order)]
-        for a, b in zip(bounds[:-1], bounds[1:], strict=True):  # one iteration per tile touched
+        for a, b in pairwise(bounds):  # one iteration per tile touched
             t = self.tiles[int(tile[order[a]])]
             t.chunks.append(rows[order[a:b]])
             t.pending += int(b - a)
@@ -233,7 +239,7 @@ class StructureModel:
         cfg = self.cfg
         if self.outdoor or self.n < cfg.slab_min_voxels or self.hist_base is None:
             return np.zeros(0, np.int64)
-        if not finishing and self.n < 1.1 * self.slab_search_n:
+        if not finishing and self.n < 1.25 * self.slab_search_n:
             return np.zeros(0, np.int64)  # the histogram has hardly changed since the last look
         self.slab_search_n = self.n
         used = np.flatnonzero(self.hist)
@@ -258,7 +264,7 @@ class StructureModel:
                 changed.append(self._drop_slab(s))
             changed.append(self._fit_band(vmap, band, b0, b1, count))
         if self.slabs:  # a slab covers a floor: a small horizontal patch (a table top, a bed) is not one
-            sizes = {s.id: int(np.count_nonzero(self.elem[: self.n] == s.id)) for s in self.slabs}
+            sizes = {s.id: s.voxels for s in self.slabs}
             largest = max(sizes.values())
             for s in [s for s in self.slabs if sizes[s.id] < _MIN_SLAB_SHARE * largest]:
                 changed.append(self._drop_slab(s))
@@ -307,7 +313,7 @@ class StructureModel:
                 continue  # at the sensor's height: a table top seen edge-on, not a slab
             kind = Kind.FLOOR if below > 0 else Kind.CEILING
             lo, hi = np.percentile(pos, 1, axis=0), np.percentile(pos, 99, axis=0)
-            slab = _Slab(self._new_id(), kind, band, plane, lo, hi, count)
+            slab = _Slab(self._new_id(), kind, band, plane, lo, hi, count, len(inliers))
             self.slabs.append(slab)
             self.elem[inliers] = slab.id
             self.kind_cls[inliers] = CLASS_OF[kind]
@@ -350,24 +356,33 @@ class StructureModel:
             self.elem[rows[on]] = e.id
             self.kind_cls[rows[on]] = e.class_id
             free &= ~on
-        if self.wall_of_piece and free.any():
-            ids = np.array(list(self.wall_of_piece))
-            ps = [self.pieces[i] for i in ids]
-            normal = np.array([p.normal for p in ps])
-            offset = np.array([p.offset for p in ps])
-            u = np.array([p.u for p in ps])
-            z = np.array([p.z for p in ps])
+        if self.wall_of_piece and free.any():  # a voxel can only lie on a piece of its own tile
             f = np.flatnonzero(free)
-            d = np.abs(pos[f, :2] @ normal.T + offset)  # (F, P)
-            along = pos[f, :2] @ np.c_[-normal[:, 1], normal[:, 0]].T
-            inside = (along > u[:, 0] - 0.2) & (along < u[:, 1] + 0.2)
-            inside &= (pos[f, 2:3] > z[:, 0] - 0.2) & (pos[f, 2:3] < z[:, 1] + 0.2)
-            score = np.where(inside & (d < thr), d, np.inf)
-            best = np.argmin(score, axis=1)
-            hit = np.isfinite(score[np.arange(len(f)), best])
-            self.elem[rows[f[hit]]] = ids[best[hit]]
-            self.kind_cls[rows[f[hit]]] = SemanticClass.WALL
+            tiles = self.tile_of[rows[f]]
+            order = np.argsort(tiles, kind="stable")
+            bounds = np.r_[0, np.flatnonzero(np.diff(tiles[order])) + 1, len(order)]
+            for lo, hi in pairwise(bounds):  # one iteration per tile touched
+                pids = [p for p in self.tiles[int(tiles[order[lo]])].pieces if p in self.wall_of_piece]
+                if pids:
+                    self._join_pieces(vmap, rows[f[order[lo:hi]]], pids)
         return rows
+
+    def _join_pieces(self, vmap: VoxelMap, rows: np.ndarray, pids: list[int]) -> None:
+        ps = [self.pieces[i] for i in pids]
+        normal = np.array([p.normal for p in ps])
+        offset = np.array([p.offset for p in ps])
+        u = np.array([p.u for p in ps])
+        z = np.array([p.z for p in ps])
+        pos = vmap.positions[rows]
+        d = np.abs(pos[:, :2] @ normal.T + offset)  # (F, P)
+        along = pos[:, :2] @ np.c_[-normal[:, 1], normal[:, 0]].T
+        inside = (along > u[:, 0] - 0.2) & (along < u[:, 1] + 0.2)
+        inside &= (pos[:, 2:3] > z[:, 0] - 0.2) & (pos[:, 2:3] < z[:, 1] + 0.2)
+        score = np.where(inside & (d < self.cfg.plane_threshold_m), d, np.inf)
+        best = np.argmin(score, axis=1)
+        hit = np.isfinite(score[np.arange(len(rows)), best])
+        self.elem[rows[hit]] = np.array(pids)[best[hit]]
+        self.kind_cls[rows[hit]] = SemanticClass.WALL
 
     # ------------------------------------------------------------------------------------------ tiles
 
@@ -376,12 +391,20 @@ class StructureModel:
         need = 1 if finishing else self.cfg.min_new_voxels
         order = np.argsort(-pending, kind="stable")
         order = order[pending[order] >= need]
+        budget = self.cfg.budget_ms
+        self.credit_ms = min(self.credit_ms + budget, budget * _CREDIT_SCANS)
         if not finishing:
             order = order[: self.cfg.tiles_per_scan]
-        self.last_tiles = [tuple(int(v) for v in self.tile_xy[i]) for i in order]
+        self.last_tiles = []
         out: list[np.ndarray] = []
         for i in order:  # one iteration per tile refitted (the budget)
+            if not finishing and self.credit_ms <= 0:
+                break
+            t0 = perf_counter()
             out.append(self._refit_tile(vmap, int(i)))
+            if not finishing:
+                self.credit_ms -= (perf_counter() - t0) * 1e3
+            self.last_tiles.append((int(self.tile_xy[i, 0]), int(self.tile_xy[i, 1])))
         return out
 
     def _tile_block(self, i: int) -> np.ndarray:
@@ -446,7 +469,7 @@ class StructureModel:
         zf, zc = storey
         margin = 0.15
         full = max(1.0, (zc - zf - 2 * margin) / self.voxel)
-        counts, origin, rows, cell = self._footprints(vmap, block, zf + margin, zc - margin)
+        counts, origin, rows, _ = self._footprints(vmap, block, zf + margin, zc - margin)
         if not len(rows):
             return
         cover = counts / full
@@ -466,9 +489,7 @@ class StructureModel:
             ring_sl = tuple(slice(max(s.start - _RING_CELLS, 0), s.stop + _RING_CELLS) for s in sl)
             ring = occupied[ring_sl].copy()
             inner = np.zeros_like(ring)
-            inner[tuple(slice(s.start - r.start, s.stop - r.start) for s, r in zip(sl, ring_sl, strict=True))] = (
-                mask
-            )
+            inner[tuple(slice(s.start - r.start, s.stop - r.start) for s, r in zip(sl, ring_sl, strict=True))] = mask
             grown = ndimage.binary_dilation(inner, iterations=1)
             around = ndimage.binary_dilation(inner, iterations=_RING_CELLS) & ~grown
             if around.sum() and ring[around].mean() > _RING_MAX_SHARE:
@@ -533,7 +554,9 @@ class StructureModel:
             centre = mean + origin * self.voxel
             if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
                 continue
-            members = np.isin(cell[:, 0] * hang.shape[1] + cell[:, 1], (xs + sl[0].start) * hang.shape[1] + ys + sl[1].start)
+            members = np.isin(
+                cell[:, 0] * hang.shape[1] + cell[:, 1], (xs + sl[0].start) * hang.shape[1] + ys + sl[1].start
+            )
             on = rows[members]
             if not len(on):
                 continue
@@ -562,7 +585,7 @@ class StructureModel:
             if len(rows) < cfg.wall_piece_min_voxels:
                 return
             pos = vmap.positions[rows]
-            plane, on = ransac_plane(pos, cfg.plane_threshold_m, _RANSAC_ITERATIONS, rng)
+            plane, on = ransac_plane(pos, cfg.plane_threshold_m, _WALL_ITERATIONS, rng)
             if on.sum() < cfg.wall_piece_min_voxels:
                 return
             keep_rows, rest = rows[on], rows[~on]
@@ -609,33 +632,45 @@ class StructureModel:
             centre = direction * mid[:, None] - normal * offset[:, None]  # a point on each piece's line
             cos = np.abs(normal @ normal.T)
             dist = np.abs(centre @ normal.T + offset[None, :])  # piece i's centre from piece j's plane
-            ends = np.stack([centre + direction * (u[:, :1] - mid[:, None]), centre + direction * (u[:, 1:] - mid[:, None])], 1)
+            ends = np.stack(
+                [centre + direction * (u[:, :1] - mid[:, None]), centre + direction * (u[:, 1:] - mid[:, None])], 1
+            )
             proj = np.einsum("ikc,jc->ijk", ends, direction)  # i's ends along j's direction
             gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
             link = (cos > np.cos(np.radians(cfg.wall_merge_deg))) & (dist < 2 * cfg.plane_threshold_m)
-            link &= (dist.T < 2 * cfg.plane_threshold_m) & (gap < _WALL_GAP_M)
+            link &= (2 * cfg.plane_threshold_m > dist.T) & (gap < _WALL_GAP_M)
             a, b = np.nonzero(link)
-            _, group = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids),) * 2), directed=False)
-            for g in np.unique(group):  # one iteration per wall
-                m = np.flatnonzero(group == g)
-                d0 = direction[m[np.argmax([len(ps[k].rows) for k in m])]]
-                span = np.einsum("kjc,c->kj", ends[m], d0)
-                width = float(span.max() - span.min())
-                height = float(z[m, 1].max() - z[m, 0].min())
-                if width >= cfg.wall_min_width_m and height >= cfg.wall_min_height_m:
-                    wall = int(ids[m].min())
-                    for k in m:
-                        self.wall_of_piece[int(ids[k])] = wall
+            graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids)))
+            _, group = connected_components(graph, directed=False)
+            # each wall's width along the direction of its largest piece, and its height (vectorised per group)
+            size = np.array([len(p.rows) for p in ps])
+            order = np.lexsort((-size, group))
+            lead = np.full(group.max() + 1, -1, np.int64)
+            lead[group[order[::-1]]] = order[::-1]  # the first of each group in `order`: its largest piece
+            span = np.einsum("kjc,kc->kj", ends, direction[lead[group]])
+            ng = group.max() + 1
+            lo_u, hi_u = np.full(ng, np.inf), np.full(ng, -np.inf)
+            lo_z, hi_z = np.full(ng, np.inf), np.full(ng, -np.inf)
+            np.minimum.at(lo_u, group, span.min(1))
+            np.maximum.at(hi_u, group, span.max(1))
+            np.minimum.at(lo_z, group, z[:, 0])
+            np.maximum.at(hi_z, group, z[:, 1])
+            ok = (hi_u - lo_u >= cfg.wall_min_width_m) & (hi_z - lo_z >= cfg.wall_min_height_m)
+            first_id = np.full(ng, np.iinfo(np.int64).max)
+            np.minimum.at(first_id, group, ids)
+            confirmed = ok[group]
+            self.wall_of_piece = dict(zip(ids[confirmed].tolist(), first_id[group[confirmed]].tolist(), strict=True))
         out: list[np.ndarray] = [np.zeros(0, np.int64)]
-        for pid, piece in self.pieces.items():  # one iteration per piece: its voxels take its wall's say
-            if pid in self.wall_of_piece:
-                free = piece.rows[(self.elem[piece.rows] < 0) | (self.elem[piece.rows] == pid)]
-                self.elem[free] = pid
-                self.kind_cls[free] = SemanticClass.WALL
-                if pid not in before:
-                    out.append(free)
-            elif pid in before:
-                mine = piece.rows[self.elem[piece.rows] == pid]
+        for pid in self.wall_of_piece.keys() - before.keys():  # newly confirmed: their voxels become wall
+            rows = self.pieces[pid].rows
+            free = rows[(self.elem[rows] < 0) | (self.elem[rows] == pid)]
+            self.elem[free] = pid
+            self.kind_cls[free] = SemanticClass.WALL
+            out.append(free)
+        for pid in before.keys() - self.wall_of_piece.keys():  # no longer a wall (or refitted away)
+            if pid in self.pieces:
+                rows = self.pieces[pid].rows
+                mine = rows[self.elem[rows] == pid]
                 self.elem[mine] = -1
                 self.kind_cls[mine] = UNLABELLED
                 out.append(mine)
@@ -712,7 +747,10 @@ class StructureModel:
         if self.has_floor or not self.n:
             return None
         what = "ground" if self.outdoor else "floor slab"
-        return f"structure: no {what} found in the levelled map (a tilted or vertical mount?); labels are the network's alone"
+        return (
+            f"structure: no {what} found in the levelled map (a tilted or vertical mount?); "
+            "labels are the network's alone"
+        )
 
     def elements(self, vmap: VoxelMap | None = None) -> list[Element]:
         """Every element found, with its support (voxels, and scans when the map is given)."""
@@ -731,7 +769,9 @@ class StructureModel:
                 continue
             plane = np.r_[big.normal, 0.0, big.offset]
             out.append(Element(wall, Kind.WALL, pos.min(axis=0), pos.max(axis=0), plane=plane))
-        out.extend(Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values()))
+        out.extend(
+            Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
+        )
         if self.outdoor and np.any(self.kind_cls[: self.n] == SemanticClass.GROUND) and vmap is not None:
             g = vmap.positions[: self.n][self.kind_cls[: self.n] == SemanticClass.GROUND]
             out.append(Element(0, Kind.GROUND, g.min(axis=0), g.max(axis=0)))
