@@ -536,7 +536,7 @@ class StructureModel:
             ok = (xs >= 0) & (ys >= 0) & (xs < hang.shape[0]) & (ys < hang.shape[1])
             support[xs[ok], ys[ok]] = below[xs[ok] - off[0], ys[ok] - off[1]] / full
         cand = (hang > 0) & (support < 0.3)
-        labels, num = ndimage.label(cand, structure=np.ones((3, 3)))
+        labels, _ = ndimage.label(cand, structure=np.ones((3, 3)))
         for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
             xs, ys = np.nonzero(labels[sl] == k)
             if len(xs) < 3:
