@@ -31,7 +31,16 @@ VOCABULARY: Final = (
 STAGES: Final = tuple(
     f"pipeline.{m}"
     for m in (
-        "register", "level", "voxel_map", "label", "labellers", "cluster", "refine", "damage", "structure", "trajectory"
+        "register",
+        "level",
+        "voxel_map",
+        "label",
+        "labellers",
+        "cluster",
+        "refine",
+        "damage",
+        "structure",
+        "trajectory",
     )
 )
 
