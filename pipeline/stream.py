@@ -319,8 +319,11 @@ def _run(
                 if summary.scans % map_every == 0:
                     t0 = perf_counter()
                     cloud = shown_map(vmap, clusterer)
+                    elements = structure.elements(vmap, scans=False) if structure is not None else []
                     for sink in sinks:
                         sink.map_update(cloud, frame.seq)
+                        if structure is not None:
+                            sink.structure(elements, frame.seq, [])
                     frame.timings_ms["sinks"] = frame.timings_ms.get("sinks", 0.0) + (perf_counter() - t0) * 1e3
                     last_map_seq = frame.seq
                 for name in STAGES:
@@ -345,6 +348,14 @@ def _run(
                 if warning:
                     notice(warning)
                     notes.append(warning)
+                elements = structure.elements(vmap)
+                for e in elements:
+                    summary.structure_elements[e.kind.value] = summary.structure_elements.get(e.kind.value, 0) + 1
+                for sink in sinks:
+                    try:
+                        sink.structure(elements, seqs[-1], notes)
+                    except OutputError as exc:
+                        error = error or exc
             if changed:
                 last_map_seq = None  # the map changed: the sinks get it again below
             for sink in sinks:

@@ -54,9 +54,11 @@ from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.geometry import voxel_downsample
 from aftershock.pipeline.sink import Sink, Stage
+from aftershock.pipeline.structure.elements import Element
 from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan, Story
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks.rrd_compact import compact
+from aftershock.sinks.structure_layer import log_structure
 
 TRAJECTORY_PIECE: Final = 100  # poses per trajectory strip (each scan re-logs its strip); older strips stay
 DRIFT_ARROW_M_PER_MM: Final = 0.05  # drift arrows are drawn 50 times larger than life (1 mm -> 5 cm)
@@ -321,6 +323,12 @@ class RerunSink(Sink):
         if self._scan is None or self._scan.seq != seq:
             self.rec.set_time(L.SCAN_TIMELINE, sequence=seq)
         self._log_map(cloud)
+
+    def structure(self, elements: list[Element], seq: int, notes: list[str]) -> None:
+        self._start()
+        if self._scan is None or self._scan.seq != seq:
+            self.rec.set_time(L.SCAN_TIMELINE, sequence=seq)
+        log_structure(self.rec, elements)
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         self._start()

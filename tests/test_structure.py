@@ -208,3 +208,18 @@ def test_every_structure_range_is_checked(value: str) -> None:
 
     with pytest.raises(InputError, match=value.split("=")[0]):
         load_config(None, [value])
+
+
+def test_the_evidence_features_read_the_rooms_geometry() -> None:
+    from aftershock.pipeline.structure.features import FEATURES, structure_features
+
+    pts, _ = room()
+    vmap, _ = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    probe = np.array([[4.0, 2.0, 0.75], [3.0, 3.0, 1.5], [0.3, 2.0, 1.0], [4.0, 2.0, 3.5]])
+    f = structure_features(model, probe, sensor_z=1.0)
+    assert f.shape == (4, len(FEATURES))
+    assert abs(f[0, 0] - 0.75) < 0.05  # height above the floor plane
+    assert f[1, 2] == 1 and f[0, 2] == 0  # inside the column's footprint
+    assert abs(f[2, 1] - 0.3) < 0.07  # 0.3 m from the wall at x = 0
+    assert f[0, 3] == 1 and f[3, 3] == 0  # under the ceiling slab, and above it

@@ -752,8 +752,8 @@ class StructureModel:
             "labels are the network's alone"
         )
 
-    def elements(self, vmap: VoxelMap | None = None) -> list[Element]:
-        """Every element found, with its support (voxels, and scans when the map is given)."""
+    def elements(self, vmap: VoxelMap | None = None, scans: bool = True) -> list[Element]:
+        """Every element found, with its support (voxels, and with `scans` the scans that saw them)."""
         elem = self.elem[: self.n]
         out: list[Element] = []
         for s in self.slabs:
@@ -784,6 +784,6 @@ class StructureModel:
         counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1)
         for e in out:
             e.voxels = int(counts[e.id]) if e.id < len(counts) else 0
-            if vmap is not None and e.voxels:
+            if vmap is not None and e.voxels and scans:
                 e.scans = len(np.unique(vmap.first_seq[: self.n][owner == e.id]))
         return [e for e in out if e.voxels]
