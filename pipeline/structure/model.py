@@ -47,6 +47,7 @@ _CREDIT_SCANS: Final = 10  # unspent refit time carries over for at most this ma
 _WALL_PLANES: Final = 6  # vertical planes tried per tile
 _WALL_VERTICAL: Final = 0.15  # |n_z| under this: a vertical plane
 _WALL_GAP_M: Final = 0.5  # pieces of one wall leave gaps no wider than this (doors are found as openings)
+_SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
 _MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
 _SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its extent (it grows as it is seen)
 _RING_CELLS: Final = 2  # a column stands free: the cells this far around its footprint are mostly empty
@@ -129,6 +130,7 @@ class StructureModel:
         self.ground_keys = KeyTable()
         self.ground_min = np.zeros(0, np.float64)
         self.next_id = 1
+        self.final = False  # finish() ran: every slab band and tile was looked at
         self.credit_ms = 0.0  # refit time this scan may still spend (amortised budget)
         self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
         self.last_tiles: list[tuple[int, int]] = []
@@ -187,6 +189,7 @@ class StructureModel:
     def finish(self, vmap: VoxelMap) -> None:
         """End of run: every changed slab band and tile refitted, whatever the budget, and every voxel fused."""
         self.slab_search_n = 0
+        self.final = True
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
@@ -257,8 +260,8 @@ class StructureModel:
             old = [s for s in self.slabs if s.band[0] < band[1] and band[0] < s.band[1]]
             if old and count < (1 + cfg.slab_refit_growth) * max(s.fitted_count for s in old):
                 continue
-            if refits and not finishing:
-                break  # one refit a scan; the rest wait
+            if refits >= _SLAB_FITS_PER_SCAN and not finishing:
+                break  # the rest wait their turn
             refits += 1
             for s in old:
                 changed.append(self._drop_slab(s))
@@ -561,6 +564,11 @@ class StructureModel:
             if not len(on):
                 continue
             pos = vmap.positions[on]
+            # a beam shows its underside: a flat bottom across most of its footprint (a wall's head does not)
+            bottom = pos[:, 2] < pos[:, 2].min() + 2 * cfg.plane_threshold_m
+            under_cells = len(np.unique(cell[members][bottom], axis=0))
+            if under_cells < 0.5 * len(xs):
+                continue
             e = Element(
                 self._new_id(),
                 Kind.BEAM,
@@ -730,7 +738,9 @@ class StructureModel:
             out[free & np.isin(c, [C.FLOOR, C.CEILING])] = C.CLUTTER
         else:
             ceilings = self._ceiling_heights()
-            bad_ceiling = free & (c == C.CEILING) & ((z < sz + margin) | (len(ceilings) == 0))
+            # a ceiling needs an overhead slab: decided at the end, when every band was looked at
+            no_slab = self.final and len(ceilings) == 0
+            bad_ceiling = free & (c == C.CEILING) & ((z < sz + margin) | no_slab)
             bad_floor = free & (c == C.FLOOR) & (z > sz - margin)
             out[bad_ceiling | bad_floor] = C.CLUTTER
             if len(ceilings):  # a beam hangs under a ceiling
