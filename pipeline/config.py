@@ -338,7 +338,8 @@ class StructureConfig(_Section):
     wall_piece_min_voxels: Count = 25
     wall_merge_deg: Angle = 10.0  # pieces of one wall: normals within this angle, planes within plane_threshold_m
     column_max_width_m: Positive = 1.0  # a column's footprint fits in a square this wide
-    column_min_cover: Fraction = 0.6  # ... its cells are occupied over this share of the story's height
+    column_min_cover: Fraction = 0.6  # ... its cells are occupied over this share of the story's height ...
+    column_min_height_m: Positive = 1.8  # ... or of this height above the floor, if less
     beam_max_depth_m: Positive = 0.8  # beams hang at most this far under a ceiling ...
     beam_min_length_m: Positive = 1.2  # ... run at least this long ...
     beam_max_width_m: Positive = 0.8  # ... and are at most this wide

@@ -130,6 +130,8 @@ class StructureModel:
         self.ground_keys = KeyTable()
         self.ground_min = np.zeros(0, np.float64)
         self.next_id = 1
+        self.arrived = 0  # voxels taken so far, and how many of them lay on an element already (the share a
+        self.explained = 0  # network could skip)
         self.final = False  # finish() ran: every slab band and tile was looked at
         self.credit_ms = 0.0  # refit time this scan may still spend (amortised budget)
         self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
@@ -181,6 +183,9 @@ class StructureModel:
             changed.append(self._ground_rows(vmap, new))
         else:
             changed.append(self._join_elements(vmap, new))
+        if not finishing:
+            self.arrived += len(new)
+            self.explained += int(np.count_nonzero(self.kind_cls[new] != UNLABELLED))
         changed.extend(self._refit_tiles(vmap, finishing))
         rows = np.unique(np.concatenate(changed)) if len(changed) > 1 else new
         self._fuse(vmap, rows)
@@ -435,28 +440,47 @@ class StructureModel:
         for p in tile.pieces:
             self.pieces.pop(p, None)
         tile.elements, tile.pieces = [], []
-        if self.outdoor:
-            ground = self._ground_rows(vmap, rows)
+        if self.outdoor:  # walls first: a facade's foot is wall, not ground
+            was_ground = rows[self.elem[rows] == 0]
+            self.elem[was_ground] = -1
+            self.kind_cls[was_ground] = UNLABELLED
             self._fit_walls(vmap, i, rows, None)
-            return np.concatenate([stale, ground, self._merge_walls(), rows])
+            walls = self._merge_walls()
+            return np.concatenate([stale, walls, self._ground_rows(vmap, rows), rows])
         centre = (self.tile_xy[i] + 0.5) * self.cfg.tile_m
         zs = float(np.median(self.sensor_z[rows])) if len(rows) else 0.0
         storey = self.storey(centre, zs)
         # walls first: what stands or hangs free of them is a column or a beam
         self._fit_walls(vmap, i, rows, storey)
         walls = self._merge_walls()
+        self._join_block_walls(vmap, i, block)
         if storey is not None:
             self._fit_columns(vmap, i, block, storey)
             self._fit_beams(vmap, i, block, storey)
         return np.concatenate([stale, walls, block])
 
+    def _block_pieces(self, i: int) -> list[int]:
+        """Confirmed wall pieces of tile `i` and the 8 tiles around it."""
+        x, y = self.tile_xy[i]
+        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
+        found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
+        return [p for j in found if j >= 0 for p in self.tiles[int(j)].pieces if p in self.wall_of_piece]
+
+    def _join_block_walls(self, vmap: VoxelMap, i: int, block: np.ndarray) -> None:
+        """Free voxels of the tiles around on a wall found in any of them (a wall's piece in one tile can miss
+        its voxels near the tile's edge, or near the ceiling)."""
+        pids = self._block_pieces(i)
+        free = block[self.elem[block] < 0]
+        if pids and len(free):
+            self._join_pieces(vmap, free, pids)
+
     def _footprints(
-        self, vmap: VoxelMap, rows: np.ndarray, z0: float, z1: float
+        self, vmap: VoxelMap, rows: np.ndarray, z0: float, z1: float, free_only: bool = True
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Occupancy grid (cells of one voxel) of free rows with z in [z0, z1): counts, origin cell, and the
-        rows with their cells."""
+        """Occupancy grid (cells of one voxel) of rows (free ones only: on no element) with z in [z0, z1):
+        counts, origin cell, and the rows with their cells."""
         pos = vmap.positions[rows]
-        sel = (self.elem[rows] < 0) & (pos[:, 2] >= z0) & (pos[:, 2] < z1)
+        sel = ((self.elem[rows] < 0) | (not free_only)) & (pos[:, 2] >= z0) & (pos[:, 2] < z1)
         rows, pos = rows[sel], pos[sel]
         if not len(rows):
             return np.zeros((0, 0), np.int64), np.zeros(2, np.int64), rows, np.zeros((0, 2), np.int64)
@@ -471,8 +495,11 @@ class StructureModel:
         cfg = self.cfg
         zf, zc = storey
         margin = 0.15
-        full = max(1.0, (zc - zf - 2 * margin) / self.voxel)
-        counts, origin, rows, _ = self._footprints(vmap, block, zf + margin, zc - margin)
+        # occupied from the floor up to the story's head, or as high as a column must reach at least (a scanner
+        # close to the floor sees a column's head only from far away, a ceiling perhaps never)
+        reach = min(zc - zf - 2 * margin, cfg.column_min_height_m)
+        full = max(1.0, reach / self.voxel)
+        counts, origin, rows, _ = self._footprints(vmap, block, zf + margin, zf + margin + reach)
         if not len(rows):
             return
         cover = counts / full
@@ -482,6 +509,7 @@ class StructureModel:
             return
         occupied = ndimage.binary_dilation(cover >= 0.25)
         max_cells = cfg.column_max_width_m / self.voxel
+        pieces = [self.pieces[p] for p in self._block_pieces(i)]
         for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
             mask = labels[sl] == k
             size = np.array(mask.shape)
@@ -500,6 +528,8 @@ class StructureModel:
             lo_cell = np.array([sl[0].start, sl[1].start]) + origin
             hi_cell = np.array([sl[0].stop, sl[1].stop]) + origin
             centre = (lo_cell + hi_cell) / 2 * self.voxel
+            if self._on_wall_line(centre, (hi_cell - lo_cell) * self.voxel, pieces):
+                continue  # a wall's end or the piece between two openings, not a column
             if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
                 continue  # the tile its centre lies in owns it
             e = Element(
@@ -515,6 +545,16 @@ class StructureModel:
             self.elem[on] = e.id
             self.kind_cls[on] = SemanticClass.COLUMN
 
+    @staticmethod
+    def _on_wall_line(centre: np.ndarray, size: np.ndarray, pieces: list[_Piece]) -> bool:
+        """Whether a footprint lies on the line of a wall piece, within its extent or just past its ends."""
+        for p in pieces:  # one iteration per wall piece nearby
+            off = abs(float(centre @ p.normal + p.offset))
+            along = float(centre @ np.array([-p.normal[1], p.normal[0]]))
+            if off < 0.5 * float(size.max()) + 0.1 and p.u[0] - _WALL_GAP_M < along < p.u[1] + _WALL_GAP_M:
+                return True
+        return False
+
     def _in_box(self, vmap: VoxelMap, rows: np.ndarray, e: Element) -> np.ndarray:
         pos = vmap.positions[rows]
         thr = self.cfg.plane_threshold_m
@@ -529,7 +569,7 @@ class StructureModel:
         hang, origin, rows, cell = self._footprints(vmap, block, zc - cfg.beam_max_depth_m, zc - cfg.plane_threshold_m)
         if not len(rows):
             return
-        below, b_origin, _, _ = self._footprints(vmap, block, zf + 0.15, zc - cfg.beam_max_depth_m)
+        below, b_origin, _, _ = self._footprints(vmap, block, zf + 0.15, zc - cfg.beam_max_depth_m, free_only=False)
         full = max(1.0, (zc - cfg.beam_max_depth_m - zf - 0.15) / self.voxel)
         support = np.zeros(hang.shape, np.float64)
         if below.size:  # the same cells in the grid of what stands below (a wall's head is not a beam)
@@ -735,7 +775,7 @@ class StructureModel:
         margin = self.cfg.sensor_margin_m
         C = SemanticClass
         if self.outdoor:  # outdoors there is ground, never floor or ceiling
-            out[free & np.isin(c, [C.FLOOR, C.CEILING])] = C.CLUTTER
+            out[free & np.isin(c, [C.FLOOR, C.CEILING, C.BEAM])] = C.CLUTTER  # no slab overhead: no beam
         else:
             ceilings = self._ceiling_heights()
             # a ceiling needs an overhead slab: decided at the end, when every band was looked at
@@ -743,12 +783,33 @@ class StructureModel:
             bad_ceiling = free & (c == C.CEILING) & ((z < sz + margin) | no_slab)
             bad_floor = free & (c == C.FLOOR) & (z > sz - margin)
             out[bad_ceiling | bad_floor] = C.CLUTTER
+            if self.final and len(ceilings):  # a ceiling voxel lies on a ceiling slab: elsewhere it is a wall's head
+                stray = np.flatnonzero(free & (c == C.CEILING) & ~bad_ceiling)
+                pos = vmap.positions[rows[stray]]
+                off = np.full(len(stray), np.inf)
+                for slab in self.slabs:  # one iteration per slab
+                    if slab.kind is Kind.CEILING:
+                        off = np.minimum(off, np.abs(pos[:, 2] - slab.height_at(pos[:, :2])))
+                far = off > 2 * self.cfg.plane_threshold_m
+                out[stray[far]] = np.where(self._near_wall(pos[far]), C.WALL, C.CLUTTER)
             if len(ceilings):  # a beam hangs under a ceiling
                 under = np.min(np.abs(z[:, None] - ceilings[None, :]), axis=1) < self.cfg.beam_max_depth_m
             else:
                 under = np.zeros(len(rows), bool)
             out[free & (c == C.BEAM) & ~under] = C.CLUTTER
         self.fused[rows] = out
+
+    def _near_wall(self, pos: np.ndarray, reach_m: float = 0.15) -> np.ndarray:
+        """Whether points lie within `reach_m` of a confirmed wall piece's plane, beside or just past it."""
+        near = np.zeros(len(pos), bool)
+        if not len(pos):
+            return near
+        for pid in self.wall_of_piece:  # one iteration per wall piece
+            p = self.pieces[pid]
+            along = pos[:, :2] @ np.array([-p.normal[1], p.normal[0]])
+            on_line = np.abs(pos[:, :2] @ p.normal + p.offset) < reach_m
+            near |= on_line & (along > p.u[0] - 0.5) & (along < p.u[1] + 0.5)
+        return near
 
     # ------------------------------------------------------------------------------------------ results
 
