@@ -322,7 +322,9 @@ class StructureConfig(_Section):
     enabled: bool = True
     tile_m: Positive = 2.0  # walls, columns and beams are found per square tile of this size, where the map changed
     tiles_per_scan: Count = 2  # at most this many changed tiles refitted a scan (the rest wait their turn) ...
-    budget_ms: Positive = 1.5  # ... and refits take at most this long a scan on average (all are done at the end)
+    # ... and refits go through at most this many voxels (of a tile and the 8 around it) a scan on average (all
+    # changed tiles are refitted at the end): a budget in voxels, so that labels never depend on the machine's speed
+    budget_voxels: Count = 500
     min_new_voxels: Count = 40  # a tile is refitted once this many voxels were added to it since its last fit
     plane_threshold_m: Positive = 0.06  # a voxel lies on a plane within this distance
     slab_bin_m: Positive = 0.05  # height histogram of the map for the story slabs (pipeline.damage.drift)

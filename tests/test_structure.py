@@ -109,7 +109,7 @@ def test_a_room_gives_its_floor_ceiling_walls_column_and_beam_with_their_extents
 def test_the_map_is_refitted_only_where_it_changed() -> None:
     pts, _ = room()
     vmap, _ = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
-    model = _run(vmap, cfg=StructureConfig(budget_ms=1e4))  # the budget is then `tiles_per_scan`
+    model = _run(vmap, cfg=StructureConfig(budget_voxels=10**7))  # the budget is then `tiles_per_scan`
     refits = model.refits
     far, _ = room(x0=20.0, x1=26.0)  # a second room far away, added later
     vmap.insert(far)

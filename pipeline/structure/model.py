@@ -23,7 +23,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from itertools import pairwise
-from time import perf_counter
 from typing import Final
 
 import numpy as np
@@ -40,12 +39,12 @@ from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 log = logging.getLogger(__name__)
 
 _HIST_BINS: Final = 1 << 13  # height histogram: enough bins for +-200 m at 5 cm
-_SLAB_SAMPLE: Final = 5000  # a slab plane is fitted on at most this many voxels of its band
-_RANSAC_ITERATIONS: Final = 300
-_WALL_ITERATIONS: Final = 120  # a tile's few thousand voxels hold a handful of planes
+_SLAB_SAMPLE: Final = 2000  # a slab plane is fitted on at most this many voxels of its band
+_SLAB_ITERATIONS: Final = 100  # a slab is the largest plane of its thin band
+_WALL_ITERATIONS: Final = 80  # a tile's few thousand voxels hold a handful of walls
+_LINE_SCORE_POINTS: Final = 1000
 _CREDIT_SCANS: Final = 10  # unspent refit time carries over for at most this many scans
 _WALL_PLANES: Final = 6  # vertical planes tried per tile
-_WALL_VERTICAL: Final = 0.15  # |n_z| under this: a vertical plane
 _WALL_GAP_M: Final = 0.5  # pieces of one wall leave gaps no wider than this (doors are found as openings)
 _SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
 _MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
@@ -99,6 +98,35 @@ class _Tile:
         return self.chunks[0] if self.chunks else np.zeros(0, np.int64)
 
 
+def ransac_line(
+    xy: np.ndarray, threshold_m: float, iterations: int, rng: np.random.Generator
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """The line (unit normal, offset: n . xy + offset = 0) most points lie within `threshold_m` of, and that
+    mask: a vertical plane of the levelled map, seen from above. All hypotheses scored at once on a sample, the
+    best refined by a principal direction of its inliers."""
+    n = len(xy)
+    i, j = rng.integers(0, n, size=(2, iterations))
+    d = xy[j] - xy[i]
+    length = np.hypot(d[:, 0], d[:, 1])
+    good = length > 2 * threshold_m
+    if not good.any():
+        return None, np.zeros(n, bool)
+    normal = np.c_[-d[good, 1], d[good, 0]] / length[good, None]
+    offset = -np.einsum("ij,ij->i", normal, xy[i[good]])
+    sample = xy[rng.choice(n, size=min(n, _LINE_SCORE_POINTS), replace=False)]
+    best = int(np.argmax((np.abs(sample @ normal.T + offset) < threshold_m).sum(axis=0)))
+    nb, ob = normal[best], float(offset[best])
+    for _ in range(2):  # refine on the inliers
+        on = np.abs(xy @ nb + ob) < threshold_m
+        if on.sum() < 3:
+            break
+        centre = xy[on].mean(axis=0)
+        _, vec = np.linalg.eigh(np.cov((xy[on] - centre).T))
+        nb = vec[:, 0]
+        ob = float(-nb @ centre)
+    return np.r_[nb, ob], np.abs(xy @ nb + ob) < threshold_m
+
+
 class StructureModel:
     """See the module docstring. `update(vmap, sensor)` after each scan's labelling; `finish(vmap)` at the end."""
 
@@ -133,7 +161,8 @@ class StructureModel:
         self.arrived = 0  # voxels taken so far, and how many of them lay on an element already (the share a
         self.explained = 0  # network could skip)
         self.final = False  # finish() ran: every slab band and tile was looked at
-        self.credit_ms = 0.0  # refit time this scan may still spend (amortised budget)
+        self.credit = 0  # voxels the refits of this scan may still go through (amortised budget)
+        self.refit_voxels = 0  # voxels the refits went through so far
         self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
         self.last_tiles: list[tuple[int, int]] = []
 
@@ -305,7 +334,7 @@ class StructureModel:
             if len(rows) < cfg.slab_min_voxels:
                 break
             sample = rows if len(rows) <= _SLAB_SAMPLE else rng.choice(rows, _SLAB_SAMPLE, replace=False)
-            plane, _ = ransac_plane(vmap.positions[sample], cfg.plane_threshold_m, _RANSAC_ITERATIONS, rng)
+            plane, _ = ransac_plane(vmap.positions[sample], cfg.plane_threshold_m, _SLAB_ITERATIONS, rng)
             if abs(plane[2]) < np.cos(np.radians(cfg.max_slab_tilt_deg)):
                 break
             on = np.abs(vmap.positions[rows] @ plane[:3] + plane[3]) < cfg.plane_threshold_m
@@ -399,21 +428,30 @@ class StructureModel:
         need = 1 if finishing else self.cfg.min_new_voxels
         order = np.argsort(-pending, kind="stable")
         order = order[pending[order] >= need]
-        budget = self.cfg.budget_ms
-        self.credit_ms = min(self.credit_ms + budget, budget * _CREDIT_SCANS)
+        # The budget is counted in voxels, not milliseconds, so that a run's labels never depend on how busy the
+        # machine was (a refit costs about the same per voxel of its 3 x 3 tile block).
+        budget = self.cfg.budget_voxels
+        self.credit = min(self.credit + budget, budget * _CREDIT_SCANS)
         if not finishing:
             order = order[: self.cfg.tiles_per_scan]
         self.last_tiles = []
         out: list[np.ndarray] = []
         for i in order:  # one iteration per tile refitted (the budget)
-            if not finishing and self.credit_ms <= 0:
+            if not finishing and self.credit <= 0:
                 break
-            t0 = perf_counter()
+            cost = self._block_size(int(i))
             out.append(self._refit_tile(vmap, int(i)))
+            self.refit_voxels += cost
             if not finishing:
-                self.credit_ms -= (perf_counter() - t0) * 1e3
+                self.credit -= cost
             self.last_tiles.append((int(self.tile_xy[i, 0]), int(self.tile_xy[i, 1])))
         return out
+
+    def _block_size(self, i: int) -> int:
+        x, y = self.tile_xy[i]
+        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
+        found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
+        return sum(sum(len(c) for c in self.tiles[int(j)].chunks) for j in found if j >= 0)
 
     def _tile_block(self, i: int) -> np.ndarray:
         """Rows of tile `i` and the 8 tiles around it."""
@@ -633,14 +671,12 @@ class StructureModel:
             if len(rows) < cfg.wall_piece_min_voxels:
                 return
             pos = vmap.positions[rows]
-            plane, on = ransac_plane(pos, cfg.plane_threshold_m, _WALL_ITERATIONS, rng)
-            if on.sum() < cfg.wall_piece_min_voxels:
+            line, on = ransac_line(pos[:, :2], cfg.plane_threshold_m, _WALL_ITERATIONS, rng)
+            if line is None or on.sum() < cfg.wall_piece_min_voxels:
                 return
             keep_rows, rest = rows[on], rows[~on]
             rows = rest
-            if abs(plane[2]) > _WALL_VERTICAL:
-                continue
-            normal = plane[:2] / np.linalg.norm(plane[:2])
+            normal = line[:2]
             p = pos[on]
             offset = float(-np.median(p[:, :2] @ normal))
             along = p[:, :2] @ np.array([-normal[1], normal[0]])
