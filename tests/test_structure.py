@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -223,3 +225,25 @@ def test_the_evidence_features_read_the_rooms_geometry() -> None:
     assert f[1, 2] == 1 and f[0, 2] == 0  # inside the column's footprint
     assert abs(f[2, 1] - 0.3) < 0.07  # 0.3 m from the wall at x = 0
     assert f[0, 3] == 1 and f[3, 3] == 0  # under the ceiling slab, and above it
+
+
+def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> None:
+    """Through the real command line: `world/structure/...` in the recording (outlines and boxes), structure.json
+    beside the export, the stage's own timing, and the map's classes where the elements lie."""
+    from rrd_read import read_rrd
+
+    rrd, export = tmp_path / "run.rrd", tmp_path / "out"
+    mission = "sim://office?seed=5&sensor=vlp16&scans=8"
+    args = [sys.executable, "-m", "aftershock.pipeline", "run", mission, "--save", str(rrd), "--export", str(export)]
+    proc = subprocess.run([*args, "--quiet", "--json"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads(proc.stdout)
+    assert summary["mean_timings_ms"]["structure"] > 0
+    doc = json.loads((export / "structure.json").read_text())
+    kinds = {e["kind"] for e in doc["elements"]}
+    assert {"floor", "wall"} <= kinds
+    floor = next(e for e in doc["elements"] if e["kind"] == "floor")
+    assert floor["support"]["voxels"] > 100 and floor["support"]["scans"] >= 1 and len(floor["plane"]) == 4
+    rec = read_rrd(rrd)
+    assert {"world/structure/floors", "world/structure/walls"} <= rec.under("world/structure")
+    assert any("LineStrips3D:strips" in c for c in rec.components("world/structure/walls"))

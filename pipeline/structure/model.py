@@ -46,6 +46,10 @@ _LINE_SCORE_POINTS: Final = 1000
 _CREDIT_SCANS: Final = 10  # unspent refit time carries over for at most this many scans
 _WALL_PLANES: Final = 6  # vertical planes tried per tile
 _WALL_GAP_M: Final = 0.5  # pieces of one wall leave gaps no wider than this (doors are found as openings)
+_SURFACE_CELL_M: Final = 0.2  # a slab's voxels fill the cells of this size they cover ...
+_MIN_INTERIOR: Final = 0.25  # ... at least this share of them inside the surface (not on its outline)
+_FACE_CELL_M: Final = 0.5  # a wall (seen by scan lines far apart on it) fills the cells of this size ...
+_MIN_FACE_FILL: Final = 0.4  # ... of its extent at least this share (a strip through furniture or the ground does not)
 _SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
 _MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
 _SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its extent (it grows as it is seen)
@@ -96,6 +100,28 @@ class _Tile:
         if len(self.chunks) > 1:
             self.chunks = [np.concatenate(self.chunks)]
         return self.chunks[0] if self.chunks else np.zeros(0, np.int64)
+
+
+def _interior_share(xy: np.ndarray, cell_m: float = _SURFACE_CELL_M) -> float:
+    """Share of the occupied cells (of `cell_m`) of points whose four neighbours are occupied too: a surface
+    seen whole is mostly interior, lines (scan rings, a wall's foot) have none."""
+    if not len(xy):
+        return 0.0
+    c = np.floor(xy / cell_m).astype(np.int64)
+    c -= c.min(axis=0)
+    shape = c.max(axis=0) + 1
+    grid = np.zeros(shape + 2, bool)
+    grid[c[:, 0] + 1, c[:, 1] + 1] = True
+    inner = grid[1:-1, 1:-1] & grid[:-2, 1:-1] & grid[2:, 1:-1] & grid[1:-1, :-2] & grid[1:-1, 2:]
+    return float(inner.sum() / max(grid.sum(), 1))
+
+
+def _fill_share(uv: np.ndarray, cell_m: float) -> float:
+    """Share of the cells (of `cell_m`) in the extent of points that hold any."""
+    c = np.floor(uv / cell_m).astype(np.int64)
+    c -= c.min(axis=0)
+    shape = c.max(axis=0) + 1
+    return float(len(np.unique(c[:, 0] * shape[1] + c[:, 1])) / (shape[0] * shape[1]))
 
 
 def ransac_line(
@@ -344,6 +370,8 @@ class StructureModel:
             first = first or len(inliers)
             rows = rows[~on]
             pos = vmap.positions[inliers]
+            if _interior_share(pos[:, :2]) < _MIN_INTERIOR:
+                continue  # lines, not a surface: a spinning scanner's rings on the walls all at one height
             height = float(np.median(pos[:, 2]))
             below = float(np.median(self.sensor_z[inliers])) - height
             if abs(below) < cfg.sensor_margin_m:
@@ -688,6 +716,8 @@ class StructureModel:
             if len(run) < cfg.wall_piece_min_voxels:
                 rows = np.r_[rows, np.setdiff1d(keep_rows, keep_rows[run])]
                 continue
+            if _fill_share(np.c_[along[run], p[run, 2]], _FACE_CELL_M) < _MIN_FACE_FILL:
+                continue  # a strip through furniture or the ground seen from above, not a face standing up
             zr = np.percentile(p[run, 2], [1, 99])
             piece = _Piece(
                 self._new_id(), i, normal, offset, (float(along[run].min()), float(along[run].max())),
