@@ -73,7 +73,7 @@ SAMPLING_ORDER: Final = ("office", "disaster", "hall", "flats")
 CACHE_VERSION: Final = 1
 RAW_SPACING_M: Final = 0.1  # spacing of the simulator's static cloud (one point per voxel at 0.1 m)
 ROOM_MARGIN_M: Final = 0.3  # a room is cut out with its walls, floor and ceiling
-COLOUR_FREE_SHARE: Final = 0.5  # of the training rooms, seen without colour
+COLOR_FREE_SHARE: Final = 0.5  # of the training rooms, seen without colour
 JITTER_M: Final = 0.01  # per training room: range-like noise up to this sigma ...
 KEEP_FRACTION: Final = (0.7, 1.0)  # ... and this share of its points kept
 MISTAKE_PROBS: Final = (0.2, 0.3, 0.4)
@@ -243,19 +243,19 @@ def cut_rooms(
     return out
 
 
-def without_colour(cloud: LabelledCloud) -> LabelledCloud:
+def without_color(cloud: LabelledCloud) -> LabelledCloud:
     """The cloud as a sensor without a camera records it: no colour at all."""
     return LabelledCloud(cloud.points, None, cloud.intensity, cloud.class_ids, cloud.instance_ids)
 
 
 def room_variant(
-    cloud: LabelledCloud, rng: np.random.Generator, colour_free_share: float = COLOUR_FREE_SHARE
+    cloud: LabelledCloud, rng: np.random.Generator, color_free_share: float = COLOR_FREE_SHARE
 ) -> LabelledCloud:
     """A training room as another scan might see it: points jittered and thinned, colour dropped for a share."""
     keep = rng.random(len(cloud)) < rng.uniform(*KEEP_FRACTION)
     out = cloud.select(keep)
     out.points = out.points + rng.normal(0.0, rng.uniform(0.0, JITTER_M), out.points.shape)
-    return without_colour(out) if rng.random() < colour_free_share else out
+    return without_color(out) if rng.random() < color_free_share else out
 
 
 def make_samples(
@@ -453,15 +453,15 @@ def generator_samples(
     generator: str,
     cfg: LRGNetConfig,
     seed: int,
-    colour_free_share: float = COLOUR_FREE_SHARE,
+    color_free_share: float = COLOR_FREE_SHARE,
     limit: int = GENERATOR_SAMPLES,
 ) -> tuple[Samples, Samples, int]:
     """Training samples of one generator (rooms varied by `room_variant`, at most `limit`) and
     validation samples (VAL_LOSS_ROOMS validation rooms, half without colour), and the number of training rooms."""
     rng = np.random.default_rng([seed, SAMPLING_ORDER.index(generator)])
     train_rooms = training_rooms(generator)
-    train_set = make_samples([room_variant(r, rng, colour_free_share) for r in train_rooms], cfg, rng)
-    val = [without_colour(r) if i % 2 else r for i, r in enumerate(validation_rooms(generator)[:VAL_LOSS_ROOMS])]
+    train_set = make_samples([room_variant(r, rng, color_free_share) for r in train_rooms], cfg, rng)
+    val = [without_color(r) if i % 2 else r for i, r in enumerate(validation_rooms(generator)[:VAL_LOSS_ROOMS])]
     return _cap(train_set, limit, rng), make_samples(val, cfg, rng), len(train_rooms)
 
 
@@ -474,7 +474,7 @@ def train(
     seed: int = 0,
     epochs: int | None = None,
     force: bool = False,
-    colour_free_share: float = COLOUR_FREE_SHARE,
+    color_free_share: float = COLOR_FREE_SHARE,
     generators: tuple[str, ...] = GENERATORS,
     samples_per_generator: int = GENERATOR_SAMPLES,
     branch_widths: tuple[int, ...] = BRANCH_WIDTHS,
@@ -491,7 +491,7 @@ def train(
     n_epochs = epochs if epochs is not None else EPOCHS
     cfg = LRGNetConfig()
     t0 = time.perf_counter()
-    data = [generator_samples(g, cfg, seed, colour_free_share, samples_per_generator) for g in generators]
+    data = [generator_samples(g, cfg, seed, color_free_share, samples_per_generator) for g in generators]
     train_set, val_set = data[0][0], data[0][1]
     for tr, va, _ in data[1:]:
         train_set, val_set = merge(train_set, tr), merge(val_set, va)
@@ -499,7 +499,7 @@ def train(
     data_seconds = time.perf_counter() - t0
     settings = {
         **weight_settings(cfg, plane), "train_points": TRAIN_POINTS, "batch": BATCH, "learning_rate": LEARNING_RATE,
-        "trajectory_steps": TRAJECTORY_STEPS, "colour_free_share": colour_free_share, "seed": seed,
+        "trajectory_steps": TRAJECTORY_STEPS, "colour_free_share": color_free_share, "seed": seed,
     }  # fmt: skip
     base = {
         "generators": list(generators),

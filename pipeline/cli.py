@@ -1,8 +1,8 @@
-"""The `aftershock` command line. Each command lives in its own module under `pipeline.commands`."""
+"""The `aftershock` command line: each command is a function in its own module under `pipeline.commands`,
+wired here one line each; the work itself is in the library (`pipeline.mission`, `pipeline.batch`, ...)."""
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 import signal
@@ -13,22 +13,11 @@ from typing import Final
 
 import typer
 
+from aftershock.pipeline.commands import batch, cracks, drift, evaluate, info, refine, run, simulate, train, view
 from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
 
 EXIT_SIGINT: Final = 130  # 128 + the signal's number, as shells report a process a signal ended
 EXIT_SIGTERM: Final = 143
-COMMAND_MODULES: Final[tuple[str, ...]] = (
-    "info",
-    "simulate",
-    "run",
-    "evaluate",
-    "train",
-    "cracks",
-    "drift",
-    "refine",
-    "view",
-    "batch",
-)
 
 app = typer.Typer(
     name="aftershock",
@@ -54,16 +43,16 @@ def _root(
     """Labelled, reviewable 3D pictures of disaster sites from robot LiDAR logs."""
 
 
-def _register_commands() -> None:
-    for name in COMMAND_MODULES:
-        module_name = f"aftershock.pipeline.commands.{name}"
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            if exc.name == module_name:  # command not built yet in this checkout
-                continue
-            raise
-        module.register(app)
+app.command()(info.info)
+app.command()(simulate.simulate)
+app.command()(run.run)
+app.command("eval")(evaluate.evaluate)
+app.command()(train.train)
+app.command()(cracks.cracks)
+app.command()(drift.drift)
+app.command()(refine.refine)
+app.command()(view.view)
+app.command()(batch.batch)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -96,7 +85,6 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault("NO_COLOR", "1")
     logging.basicConfig(level=logging.WARNING, format="aftershock: %(levelname)s: %(message)s")
     warnings.showwarning = _show_warning
-    _register_commands()
     _Terminated.seen = False
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _terminate)

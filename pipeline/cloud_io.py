@@ -16,7 +16,7 @@ from aftershock.pipeline.types import LabelledCloud
 
 _INTENSITY_NAMES: Final = ("intensity", "scalar_intensity", "scalar_Intensity", "reflectance")
 # A PLY header comment saying that red, green, blue stand in for a colour the source did not have
-STAND_IN_COLOUR_COMMENT: Final = "aftershock: no colour recorded (red green blue are a stand-in)"
+STAND_IN_COLOR_COMMENT: Final = "aftershock: no colour recorded (red green blue are a stand-in)"
 
 
 def check_output(path: str | Path, force: bool = False, inputs: Iterable[str | Path] = ()) -> Path:
@@ -122,7 +122,7 @@ def read_cloud(path: str | Path) -> LabelledCloud:
         raise InputError("PLY vertices have no x, y, z", p)
     points = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
     colors = None
-    if {"red", "green", "blue"} <= names and STAND_IN_COLOUR_COMMENT not in ply.comments:
+    if {"red", "green", "blue"} <= names and STAND_IN_COLOR_COMMENT not in ply.comments:
         rgb = np.stack([v["red"], v["green"], v["blue"]], axis=1)
         colors = (rgb * 255 if rgb.dtype.kind == "f" and rgb.max(initial=0) <= 1.0 else rgb).astype(np.uint8)
     intensity = None
@@ -171,7 +171,7 @@ def _read_with_open3d(p: Path) -> LabelledCloud:
 
 
 def write_cloud(
-    path: str | Path, cloud: LabelledCloud, *, force: bool = False, binary: bool = True, stand_in_colour: bool = False
+    path: str | Path, cloud: LabelledCloud, *, force: bool = False, binary: bool = True, stand_in_color: bool = False
 ) -> Path:
     """Write a labelled PLY; refuses to overwrite unless `force`. The format always carries red, green, blue: a
     cloud without colour gets grey, and that (or colour the caller made up, `stand_in_colour`) is marked in the
@@ -181,7 +181,7 @@ def write_cloud(
     fields: list[tuple[str, str]] = [("x", "f4"), ("y", "f4"), ("z", "f4")]
     columns: dict[str, np.ndarray] = {"x": cloud.points[:, 0], "y": cloud.points[:, 1], "z": cloud.points[:, 2]}
     colors = cloud.colors if cloud.colors is not None else np.full((n, 3), 200, np.uint8)
-    comments = [STAND_IN_COLOUR_COMMENT] if stand_in_colour or cloud.colors is None else []
+    comments = [STAND_IN_COLOR_COMMENT] if stand_in_color or cloud.colors is None else []
     for i, name in enumerate(("red", "green", "blue")):
         fields.append((name, "u1"))
         columns[name] = colors[:, i]

@@ -208,10 +208,10 @@ class LRGNetConfig(_Section):
     fpfh_similarity: Cosine = 0.98  # cosine similarity of FPFH histograms to link touching voxels (tuned likewise)
     mcpnet_similarity: Cosine = 0.9  # cosine similarity of MCPNet embeddings (the clustering stage's β indoor)
 
-    def for_colour(self, colour: bool) -> LRGNetConfig:
+    def for_color(self, color: bool) -> LRGNetConfig:
         """These settings for a cloud with colour (or without): every mode-dependent setting left at None takes
         its mode's default."""
-        unset = {k: v for k, v in LRGNET_MODE_DEFAULTS[colour].items() if getattr(self, k) is None}
+        unset = {k: v for k, v in LRGNET_MODE_DEFAULTS[color].items() if getattr(self, k) is None}
         return self.model_copy(update=unset) if unset else self
 
 

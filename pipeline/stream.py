@@ -2,14 +2,14 @@
 
     result = run_stream(sources.open(path), cfg, sinks, RunInfo(source=path, source_kind="mcap"))
 
-Stages are generator functions chained lazily. With `stream.overlap` (opt-in) reading and registering
-run on a second thread, at most `stream.ahead` scans ahead, while the main thread labels, clusters and tells
-the sinks (the slow parts of both release the GIL: KISS-ICP, PyTorch, numpy); every sink call still happens
-on the main thread in the same order as without it, so the outputs are the same. The accumulated map
-goes to the sinks every `cfg.rerun.map_every` scans (decided here only) and once at the end. Sinks always
-get `close()`, and after a Ctrl-C also `end()` with what was processed, so their files stay valid; the result then says
-`interrupted` and counts the scans that went through every stage (the one in flight may have reached the
-sinks for its first stages).
+Stages are generator functions chained lazily (`stage_chain`, first below). With `stream.overlap` (opt-in)
+reading and registering run on a second thread, at most `stream.ahead` scans ahead, while the main thread
+labels, clusters and tells the sinks (the slow parts of both release the GIL: KISS-ICP, PyTorch, numpy); every
+sink call still happens on the main thread in the same order as without it, so the outputs are the same. The
+accumulated map goes to the sinks every `cfg.rerun.map_every` scans (decided here only) and once at the end.
+Sinks always get `close()`, and after a Ctrl-C also `end()` with what was processed, so their files stay valid;
+the result then says `interrupted` and counts the scans that went through every stage (the one in flight may
+have reached the sinks for its first stages).
 """
 
 from __future__ import annotations
@@ -34,7 +34,14 @@ from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError, OutputError
 from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
 from aftershock.pipeline.labellers.oracle import TruthStandIn
-from aftershock.pipeline.register import MIN_POINTS, guess_environment, make_registrar, register_stage
+from aftershock.pipeline.register import (
+    MIN_POINTS,
+    Registrar,
+    TruthPoses,
+    guess_environment,
+    make_registrar,
+    register_stage,
+)
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.structure import StructureModel
 from aftershock.pipeline.structure.stage import structure_stage
@@ -45,6 +52,22 @@ from aftershock.pipeline.voxel_map import VoxelMap
 log = logging.getLogger(__name__)
 
 STAGES: tuple[str, ...] = ("source", "register", "label", "structure", "cluster", "sinks")
+
+
+def stage_chain(scans: Iterable[Scan], run: _Run, sinks: Sequence[Sink]) -> tuple[Iterator[Frame], Iterator[Frame]]:
+    """The stages, chained lazily, every sink told after each: source -> register -> label (the network, then the
+    structure model's fusion) -> cluster. Returns
+    the registered frames (closed to stop the reading) and the clustered ones (iterated by `_loop`)."""
+    reach = labelling_range(run.cfg, run.environment)
+    registered = register_stage(_timed_source(scans), run.registrar)
+    if run.cfg.stream.overlap:
+        registered = _ahead(registered, run.cfg.stream.ahead)
+    # The raw scan goes to the sinks after its registration (which leaves it as it is): all on this thread.
+    frames = _tap(_tap(registered, sinks, Stage.RAW), sinks, Stage.REGISTERED)
+    labelled = structure_stage(label_stage(frames, run.vmap, run.labeller, reach), run.vmap, run.structure)
+    frames = _tap(labelled, sinks, Stage.LABELLED)
+    frames = _tap(cluster_stage(frames, run.vmap, run.clusterer), sinks, Stage.CLUSTERED)
+    return registered, frames
 
 
 @dataclass(slots=True)
@@ -213,7 +236,7 @@ def final_cloud(vmap: VoxelMap) -> LabelledCloud:
     """The map at the end of a run; without colour when no scan had any (not the grey the map stores for such
     points): LRGNet and the damage assessment then take their colour-free settings, and exports say so."""
     cloud = vmap.to_cloud()
-    if not vmap.has_colour:
+    if not vmap.has_color:
         cloud.colors = None
     return cloud
 
@@ -257,6 +280,38 @@ def run_stream(
         return _run(scans, cfg, sinks, info, notice, on_final_map)
 
 
+@dataclass
+class _Run:
+    """One run's components and what it has gathered so far, from set-up to the result."""
+
+    cfg: Config  # a copy, with the environment resolved
+    environment: Environment
+    labeller: Labeller
+    vmap: VoxelMap
+    registrar: Registrar | TruthPoses
+    clusterer: InstanceClusterer
+    t_start: float
+    structure: StructureModel | None = None  # None: `structure.enabled` off
+    notes: list[str] = field(default_factory=list)
+    summary: RunSummary = field(default_factory=RunSummary)
+    seqs: list[int] = field(default_factory=list)
+    stamps: list[int] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)
+    true_poses: list[np.ndarray | None] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    last_map_seq: int | None = None  # the scan the sinks last got the map after
+
+    def add(self, frame: Frame) -> None:
+        self.summary.scans += 1
+        self.summary.points += len(frame.scan)
+        if not frame.registration_ok:
+            self.summary.registration_failures.append(frame.seq)
+        self.seqs.append(frame.seq)
+        self.stamps.append(frame.scan.stamp_ns)
+        self.poses.append(frame.stamp_pose if frame.stamp_pose is not None else frame.pose)
+        self.true_poses.append(frame.scan.gt_pose)
+
+
 def _run(
     scans: Iterable[Scan],
     cfg: Config,
@@ -266,6 +321,27 @@ def _run(
     on_final_map: MapHook | None = None,
 ) -> StreamResult:
     notice = notice or (lambda text: print(f"aftershock: {text}", file=sys.stderr))
+    run, all_scans = _set_up(scans, cfg, info, notice)
+    registered, frames = stage_chain(all_scans, run, sinks)
+    try:
+        for sink in sinks:
+            sink.begin(info)
+        try:
+            error: BaseException | None = _loop(run, frames, sinks, notice)
+        finally:
+            registered.close()  # no more reading and registering while the outputs are finished
+        _finish(run, sinks, info, on_final_map, error, notice)
+    finally:
+        with _no_interrupts():
+            _close_all(sinks)
+    return _result(run)
+
+
+def _set_up(
+    scans: Iterable[Scan], cfg: Config, info: RunInfo, notice: Callable[[str], None]
+) -> tuple[_Run, Iterator[Scan]]:
+    """The components, chosen from the first usable scan (the environment, hence the labeller and the
+    registration settings); and every scan again, that one and those before it included."""
     t_start = perf_counter()
     it = iter(scans)
     skipped, first = _first_usable(it, info.source)
@@ -277,137 +353,142 @@ def _run(
     labeller = choose_labeller(cfg, notice)
     info.environment = environment.value
     info.labeller = labeller.name
+    run = _Run(
+        cfg=cfg,
+        environment=environment,
+        labeller=labeller,
+        vmap=VoxelMap.from_config(cfg.map, labeller.embedding_dim),
+        registrar=make_registrar(cfg.registration, environment),
+        clusterer=InstanceClusterer.from_config(cfg.cluster, labeller.affinity, labeller.embedding_dim),
+        t_start=t_start,
+    )
+    if cfg.structure.enabled:
+        run.structure = StructureModel(cfg.structure, environment, run.vmap.voxel_size)
+    return run, (s for part in (skipped, [first], it) for s in part)
 
-    vmap = VoxelMap.from_config(cfg.map, labeller.embedding_dim)
-    registrar = make_registrar(cfg.registration, environment)
-    clusterer = InstanceClusterer.from_config(cfg.cluster, labeller.affinity, labeller.embedding_dim)
-    all_scans = (s for part in (skipped, [first], it) for s in part)
 
-    registered: Iterator[Frame] = register_stage(_timed_source(all_scans), registrar)
-    if cfg.stream.overlap:
-        registered = _ahead(registered, cfg.stream.ahead)
-    # The raw scan goes to the sinks after its registration (which leaves it as it is): all on this thread.
-    frames = _tap(_tap(registered, sinks, Stage.RAW), sinks, Stage.REGISTERED)
-    structure = StructureModel(cfg.structure, environment, vmap.voxel_size) if cfg.structure.enabled else None
-    labelled = label_stage(frames, vmap, labeller, labelling_range(cfg, environment))
-    frames = _tap(structure_stage(labelled, vmap, structure), sinks, Stage.LABELLED)
-    frames = _tap(cluster_stage(frames, vmap, clusterer), sinks, Stage.CLUSTERED)
-
-    summary = RunSummary()
-    notes: list[str] = []
-    seqs: list[int] = []
-    stamps: list[int] = []
-    poses: list[np.ndarray] = []
-    true_poses: list[np.ndarray | None] = []
-    timings: dict[str, float] = dict.fromkeys(STAGES, 0.0)
-    map_every = max(1, cfg.rerun.map_every)  # the one place that decides how often the map is re-sent
-    last_map_seq: int | None = None
-    output_error: OutputError | None = None
+def _loop(
+    run: _Run, frames: Iterator[Frame], sinks: Sequence[Sink], notice: Callable[[str], None]
+) -> OutputError | None:
+    """Every frame through the stages, the map to the sinks every `rerun.map_every` scans. Ctrl-C, or a sink
+    that cannot write (a full disk, returned), ends it early and marks the run interrupted."""
+    map_every = max(1, run.cfg.rerun.map_every)  # the one place that decides how often the map is re-sent
     try:
-        for sink in sinks:
-            sink.begin(info)
-        try:
-            for frame in frames:
-                summary.scans += 1
-                summary.points += len(frame.scan)
-                if not frame.registration_ok:
-                    summary.registration_failures.append(frame.seq)
-                seqs.append(frame.seq)
-                stamps.append(frame.scan.stamp_ns)
-                poses.append(frame.stamp_pose if frame.stamp_pose is not None else frame.pose)
-                true_poses.append(frame.scan.gt_pose)
-                if summary.scans % map_every == 0:
-                    t0 = perf_counter()
-                    cloud = shown_map(vmap, clusterer)
-                    elements = structure.elements(vmap, scans=False) if structure is not None else []
-                    for sink in sinks:
-                        sink.map_update(cloud, frame.seq)
-                        if structure is not None:
-                            sink.structure(elements, frame.seq, [])
-                    frame.timings_ms["sinks"] = frame.timings_ms.get("sinks", 0.0) + (perf_counter() - t0) * 1e3
-                    last_map_seq = frame.seq
-                for name in STAGES:
-                    timings[name] += frame.timings_ms.get(name, 0.0)
-        except KeyboardInterrupt:
-            summary.interrupted = True
-            notice(f"interrupted after {summary.scans} scans; finishing the outputs")
-        except OutputError as exc:  # a sink cannot write (a full disk): stop, and finish every other output
-            summary.interrupted = True
-            output_error = exc
-            notice(f"stopped after {summary.scans} scans ({exc}); finishing the other outputs")
-        finally:
-            registered.close()  # no more reading and registering while the outputs are finished
-        error: BaseException | None = output_error
-        if seqs:
-            merges, changed = consolidate(vmap, clusterer, labeller, seqs[-1], summary)
-            if structure is not None:  # every changed region refitted, and the fused classes over the votes
-                structure.finish(vmap)
-                structure.apply(vmap)
-                changed = True
-                warning = structure.warning()
-                if warning:
-                    notice(warning)
-                    notes.append(warning)
-                elements = structure.elements(vmap)
-                for e in elements:
-                    summary.structure_elements[e.kind.value] = summary.structure_elements.get(e.kind.value, 0) + 1
+        for frame in frames:
+            run.add(frame)
+            if run.summary.scans % map_every == 0:
+                t0 = perf_counter()
+                cloud = shown_map(run.vmap, run.clusterer)
+                model = run.structure
+                elements = model.elements(run.vmap, scans=False) if model is not None else []
                 for sink in sinks:
-                    try:
-                        sink.structure(elements, seqs[-1], notes)
-                    except OutputError as exc:
-                        error = error or exc
-            if changed:
-                last_map_seq = None  # the map changed: the sinks get it again below
-            for sink in sinks:
-                try:
-                    sink.merges(merges, seqs[-1])
-                except OutputError as exc:
-                    error = error or exc
-        if on_final_map is not None and not summary.interrupted and len(vmap):
-            try:
-                on_final_map(final_cloud(vmap), sinks)
-            except (Exception, KeyboardInterrupt) as exc:  # the run's own outputs are still finished below
-                error = exc
-        with _no_interrupts():
-            final = final_cloud(vmap)
-            _fill_summary(summary, vmap, final, timings, perf_counter() - t_start)
-            summary.skipped_messages = len(info.report.skipped)
-            summary.damaged_log = info.report.damage is not None
-            summary.damage = info.report.damage
-            summary.level_tilt_deg = registrar.tilt_deg
-            for sink in sinks:  # one sink that cannot write does not keep the others from finishing
-                try:
-                    if seqs and last_map_seq != seqs[-1]:
-                        sink.map_update(final, seqs[-1])
-                    sink.end(summary, final)
-                except OutputError as exc:
-                    error = error or exc
-        if error is not None:
-            raise error
-    finally:
-        with _no_interrupts():
-            _close_all(sinks)
+                    sink.map_update(cloud, frame.seq)
+                    if model is not None:
+                        sink.structure(elements, frame.seq, [])
+                frame.timings_ms["sinks"] = frame.timings_ms.get("sinks", 0.0) + (perf_counter() - t0) * 1e3
+                run.last_map_seq = frame.seq
+            for name in STAGES:
+                run.timings[name] += frame.timings_ms.get(name, 0.0)
+    except KeyboardInterrupt:
+        run.summary.interrupted = True
+        notice(f"interrupted after {run.summary.scans} scans; finishing the outputs")
+    except OutputError as exc:  # a sink cannot write (a full disk): stop, and finish every other output
+        run.summary.interrupted = True
+        notice(f"stopped after {run.summary.scans} scans ({exc}); finishing the other outputs")
+        return exc
+    return None
 
-    pose_arr = np.array(poses).reshape(-1, 4, 4)
-    has_truth = np.array([p is not None for p in true_poses], bool)
+
+def _finish(
+    run: _Run,
+    sinks: Sequence[Sink],
+    info: RunInfo,
+    on_final_map: MapHook | None,
+    error: BaseException | None,
+    notice: Callable[[str], None] = lambda _text: None,
+) -> None:
+    """End of run: consolidation and its merges to the sinks, the on-demand analyses (not after an
+    interruption), the summary, the final map and `end()` to every sink; then the first error is raised."""
+    summary, vmap = run.summary, run.vmap
+    if run.seqs:
+        merges, changed = consolidate(vmap, run.clusterer, run.labeller, run.seqs[-1], summary)
+        if run.structure is not None:  # every changed region refitted, and the fused classes over the votes
+            error = _finish_structure(run, sinks, notice) or error
+            changed = True
+        if changed:
+            run.last_map_seq = None  # the map changed: the sinks get it again below
+        for sink in sinks:
+            try:
+                sink.merges(merges, run.seqs[-1])
+            except OutputError as exc:
+                error = error or exc
+    if on_final_map is not None and not summary.interrupted and len(vmap):
+        try:
+            on_final_map(final_cloud(vmap), sinks)
+        except (Exception, KeyboardInterrupt) as exc:  # the run's own outputs are still finished below
+            error = exc
+    with _no_interrupts():
+        final = final_cloud(vmap)
+        _fill_summary(summary, vmap, final, run.timings, perf_counter() - run.t_start)
+        summary.skipped_messages = len(info.report.skipped)
+        summary.damaged_log = info.report.damage is not None
+        summary.damage = info.report.damage
+        summary.level_tilt_deg = run.registrar.tilt_deg
+        for sink in sinks:  # one sink that cannot write does not keep the others from finishing
+            try:
+                if run.seqs and run.last_map_seq != run.seqs[-1]:
+                    sink.map_update(final, run.seqs[-1])
+                sink.end(summary, final)
+            except OutputError as exc:
+                error = error or exc
+    if error is not None:
+        raise error
+
+
+def _finish_structure(run: _Run, sinks: Sequence[Sink], notice: Callable[[str], None]) -> OutputError | None:
+    """The structure model over every region still waiting, its classes into the map, one warning where it
+    found no floor (the labels are then the network's alone), and its elements to the sinks."""
+    model, vmap, error = run.structure, run.vmap, None
+    assert model is not None
+    model.finish(vmap)
+    model.apply(vmap)
+    warning = model.warning()
+    if warning:
+        notice(warning)
+        run.notes.append(warning)
+    elements = model.elements(vmap)
+    for e in elements:
+        run.summary.structure_elements[e.kind.value] = run.summary.structure_elements.get(e.kind.value, 0) + 1
+    for sink in sinks:
+        try:
+            sink.structure(elements, run.seqs[-1], run.notes)
+        except OutputError as exc:
+            error = error or exc
+    return error
+
+
+def _result(run: _Run) -> StreamResult:
+    """The result of a finished run, with the trajectory error where the log gave true poses."""
+    pose_arr = np.array(run.poses).reshape(-1, 4, 4)
+    has_truth = np.array([p is not None for p in run.true_poses], bool)
     truth = None
     trajectory = None
     if has_truth.sum() >= 2:  # frames whose true pose the log could not give are left out
-        truth = np.full((len(poses), 4, 4), np.nan)
-        truth[has_truth] = np.array([p for p in true_poses if p is not None])
+        truth = np.full((len(run.poses), 4, 4), np.nan)
+        truth[has_truth] = np.array([p for p in run.true_poses if p is not None])
         trajectory = trajectory_error(pose_arr[has_truth], truth[has_truth])
     return StreamResult(
-        summary=summary,
-        vmap=vmap,
-        environment=environment,
-        labeller=labeller.name,
-        seqs=np.array(seqs, np.int64),
-        stamps_ns=np.array(stamps, np.int64),
+        summary=run.summary,
+        vmap=run.vmap,
+        environment=run.environment,
+        labeller=run.labeller.name,
+        seqs=np.array(run.seqs, np.int64),
+        stamps_ns=np.array(run.stamps, np.int64),
         poses=pose_arr,
         true_poses=truth,
         trajectory=trajectory,
-        notes=notes,
-        structure=structure,
+        notes=run.notes,
+        structure=run.structure,
     )
 
 

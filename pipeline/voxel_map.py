@@ -196,7 +196,7 @@ class VoxelMap:
         self.voxel_size = float(voxel_size)
         self.embedding_dim = int(embedding_dim)
         self.has_truth = False
-        self.has_colour = False  # some scan brought colour (else the stored grey stands for none)
+        self.has_color = False  # some scan brought colour (else the stored grey stands for none)
         self._n = 0
         self._table = KeyTable()
         self._data: dict[str, np.ndarray] = {}
@@ -314,7 +314,7 @@ class VoxelMap:
             d["positions"][new_rows] = pts[src]
             if colors is not None:
                 d["colors"][new_rows] = np.asarray(colors)[src]
-                self.has_colour = True
+                self.has_color = True
             else:
                 d["colors"][new_rows] = 200
             d["keys"][new_rows] = uniq[new]

@@ -142,7 +142,7 @@ class FileExportSink(Sink):
                 cloud.points, class_colors(cloud.class_ids), cloud.intensity, cloud.class_ids, cloud.instance_ids
             )
         # the path was checked at construction; class colours stand in for a colour the log did not have
-        write_cloud(self.map_path, cloud, force=True, stand_in_colour=final_map.colors is None)
+        write_cloud(self.map_path, cloud, force=True, stand_in_color=final_map.colors is None)
         data = asdict(summary)
         stats = map_statistics(final_map)
         if not data["instances_per_class"]:

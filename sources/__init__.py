@@ -36,7 +36,7 @@ class SourceDescription:
     kind: SourceKind
     topic: str = ""
     log_start_ns: int | None = None
-    viewer_reads: bool = False  # the Rerun viewer opens this log itself (MCAP with ROS 2 / Foxglove clouds)
+    raw_in_log: bool = False  # the viewer reads the raw scans from the log itself (MCAP, ROS 2 / Foxglove clouds)
     log_id: str = ""  # fingerprint of the log file (`mcap_source.fingerprint`)
 
 
@@ -106,11 +106,11 @@ def describe(path_or_uri: str | Path, topic: str | None = None) -> SourceDescrip
     kind = kind_of(path_or_uri)
     if kind is SourceKind.MCAP:
         from aftershock.sources.common import choose_topic
-        from aftershock.sources.mcap_source import fingerprint, read_catalog, viewer_reads
+        from aftershock.sources.mcap_source import fingerprint, raw_in_log, read_catalog
 
         cat = read_catalog(Path(path_or_uri))
         chosen = choose_topic(cat.types, topic, path_or_uri)
-        readable = viewer_reads(cat.topics[chosen]) if chosen in cat.topics else False
+        readable = raw_in_log(cat.topics[chosen]) if chosen in cat.topics else False
         return SourceDescription(kind, chosen, cat.start_ns, readable, fingerprint(Path(path_or_uri)))
     if kind is SourceKind.BAG:
         from aftershock.sources.bag import read_catalog as read_bag_catalog

@@ -96,8 +96,9 @@ VIEWER_CLOUDS: Final[frozenset[tuple[str, str]]] = frozenset(
 _FINGERPRINT_BYTES: Final = 1 << 16
 
 
-def viewer_reads(topic: TopicInfo) -> bool:
-    """Whether the Rerun viewer shows this topic's point clouds when it opens the MCAP itself."""
+def raw_in_log(topic: TopicInfo) -> bool:
+    """Whether the viewer reads this topic's raw scans from the log itself (it shows its point clouds when it
+    opens the MCAP), so a recording need not copy them (`RunInfo.raw_in_log`)."""
     return (topic.encoding, topic.type) in VIEWER_CLOUDS
 
 

@@ -22,7 +22,7 @@ import pytest
 import torch
 
 from aftershock.models import transfer_split as split
-from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, without_colour
+from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, without_color
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.refine import DEFAULT_WEIGHTS, baseline_cloud, load_network, refine_cloud, scores
@@ -111,9 +111,9 @@ def test_same_family(rooms: dict[str, list[LabelledCloud]]) -> None:
     torch.set_num_threads(1)
     means = {}
     for g in GENERATORS:
-        for colour in (True, False):
-            rs = rooms[g] if colour else [without_colour(r) for r in rooms[g]]
-            mode = "rgb" if colour else "no colour"
+        for color in (True, False):
+            rs = rooms[g] if color else [without_color(r) for r in rooms[g]]
+            mode = "rgb" if color else "no colour"
             table = {"lrgnet": _lrgnet(rs, _weights())}
             for b in available():
                 table[b.value] = _baseline(rs, b)
@@ -160,7 +160,7 @@ def test_validation_choice() -> None:
         cells = {}
         for g, rs in val.items():
             for mode in VALIDATION_MODES:
-                rows = _lrgnet(rs if mode == "rgb" else [without_colour(r) for r in rs], weights, **updates)
+                rows = _lrgnet(rs if mode == "rgb" else [without_color(r) for r in rs], weights, **updates)
                 cells[(g, mode)] = _mean(rows)
         m = {k: float(np.mean([c[k] for c in cells.values()])) for k in KEYS}
         line = f"validation {weights} seeds {VALIDATION_SEEDS} {updates or 'defaults'}: " + " ".join(

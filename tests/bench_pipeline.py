@@ -103,7 +103,7 @@ _WHOLE_STREAM: Final = _CPU_TIMERS + textwrap.dedent(
     """
     import json, resource, sys
     from pathlib import Path
-    from aftershock.pipeline.commands.run import make_sinks, open_scans
+    from aftershock.pipeline.mission import make_sinks, open_scans
     from aftershock.pipeline.config import load_config
     from aftershock.pipeline.stream import run_stream
 

@@ -239,7 +239,7 @@ def test_validation_choice(tmp_path: Path) -> None:
 def test_lrgnet_transfer() -> None:
     import torch
 
-    from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, without_colour
+    from aftershock.models.lrgnet_train import GENERATORS, HELDOUT_SEEDS, building_rooms, without_color
     from aftershock.pipeline.config import LRGNetConfig
     from aftershock.pipeline.refine import WEIGHTS_DIR, baseline_cloud, load_network, refine_cloud, scores
     from aftershock.pipeline.refine.baselines import Baseline
@@ -260,7 +260,7 @@ def test_lrgnet_transfer() -> None:
     results: dict[str, dict[tuple[str, bool], dict[str, float]]] = {}
     for dom, rooms in domains.items():
         for color in (True, False):
-            rs = rooms if color else [without_colour(r) for r in rooms]
+            rs = rooms if color else [without_color(r) for r in rooms]
             rows = [scores(r.instance_ids, refine_cloud(r, cfg, net=net).instance_ids) for r in rs]
             results.setdefault("lrgnet", {})[(dom, color)] = {k: float(np.mean([x[k] for x in rows])) for k in LRG_KEYS}
             for b in baselines:

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
+# ../shared/data beside the checkout; AFTERSHOCK_SHARED_DATA names it for a checkout elsewhere (a worktree)
+SHARED_DATA = Path(os.environ.get("AFTERSHOCK_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 os.environ.setdefault("CI", "true")  # keeps the rerun CLI from asking about analytics
 os.environ.setdefault("RERUN_ANALYTICS", "0")

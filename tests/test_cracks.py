@@ -325,7 +325,7 @@ def test_box_and_report_file(
     assert main(["cracks", str(ply), "--box", "1,2,3"]) == 2
 
 
-def test_pcd_input_without_colour_needs_a_geometric_feature(tmp_path: Path) -> None:
+def test_pcd_input_without_color_needs_a_geometric_feature(tmp_path: Path) -> None:
     pts, _ = _plane_with_cracks(0.004)
     path = write_cloud(tmp_path / "c.ply", LabelledCloud(pts))
     assert main(["cracks", str(path), "--features", "curvature", "--json"]) == 0

@@ -6,7 +6,10 @@ Layers, bottom to top (a module imports only from layers below it, or from its o
 2. components: sources; the stages (register, level, voxel_map, label, labellers, cluster, refine, damage, trajectory)
 3. the stream and the sink interface it owns
 4. sinks, which implement that interface
-5. the command line: cli, commands, and the training pipelines (they drive the simulator and the stages)
+5. the mission library: one mission from source to sinks and the analyses of its final map (pipeline.mission)
+6. batch: many missions on Ray (pipeline.batch), each run by the mission library
+7. the command line: cli, commands, and the training pipelines (they drive the simulator and the stages) --
+   thin: a command may import the library below, nothing below imports a command
 """
 
 from __future__ import annotations
@@ -71,7 +74,7 @@ def layer_of(module: str) -> tuple[int, str]:
     if module in VOCABULARY:
         return 0, "vocabulary"
     if module.startswith("models.") and module.endswith("_train"):
-        return 5, "cli"
+        return 7, "cli"
     if under(("models",)):
         return 1, "models"
     if under(("sources",)):
@@ -82,8 +85,12 @@ def layer_of(module: str) -> tuple[int, str]:
         return 3, "stream"
     if under(("sinks",)):
         return 4, "sinks"
+    if module == "pipeline.mission":
+        return 5, "mission"
+    if under(("pipeline.batch",)):
+        return 6, "batch"
     if under(("pipeline.cli", "pipeline.__main__", "pipeline.commands")):
-        return 5, "cli"
+        return 7, "cli"
     raise AssertionError(f"{module} has no layer: add it to tests/test_layers.py")
 
 
@@ -171,10 +178,38 @@ def test_no_import_cycles() -> None:
     assert not cycles, cycles
 
 
-@pytest.mark.parametrize("module", ["pipeline.stream", "sources.mcap_source", "models.crackembed", "pipeline.damage"])
+KNOWN_LAYERS: Final = {
+    "pipeline.stream": 3,
+    "sources.mcap_source": 2,
+    "models.crackembed": 1,
+    "pipeline.damage": 2,
+    "pipeline.mission": 5,
+    "pipeline.batch.worker": 6,
+    "pipeline.commands.run": 7,
+}
+
+
+@pytest.mark.parametrize("module", sorted(KNOWN_LAYERS))
 def test_known_modules_have_their_layer(module: str) -> None:
     """Guards the rules themselves: a few modules the layering must place where the docstring says."""
     edges, _ = import_graph()
     assert module in edges
-    expected = {"pipeline.stream": 3, "sources.mcap_source": 2, "models.crackembed": 1, "pipeline.damage": 2}
-    assert layer_of(module)[0] == expected[module]
+    assert layer_of(module)[0] == KNOWN_LAYERS[module]
+
+
+def test_the_command_line_is_thin() -> None:
+    """Commands hold options and printing: no sink is made or told there (that is the stream's and the
+    mission's), and every command module is wired into the app by name in cli.py, none loaded from a table."""
+    edges, _ = import_graph()
+    cli_modules = [m for m in edges if layer_of(m) == (7, "cli") and not m.startswith("models.")]
+    to_sinks = sorted(f"{m} imports {d}" for m in cli_modules for d in edges[m] if layer_of(d)[1] == "sinks")
+    allowed = {"pipeline.commands.view"}  # `view` opens a viewer on a log and a recording: no sink, no stream
+    assert [t for t in to_sinks if t.split()[0] not in allowed] == []
+    commands = {p.stem for p in (REPO / "pipeline" / "commands").glob("*.py") if p.stem != "__init__"}
+    cli = ast.parse((REPO / "pipeline" / "cli.py").read_text())
+    wired = {
+        node.value.id
+        for node in ast.walk(cli)
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in commands
+    }
+    assert wired == commands, f"command modules not wired in cli.py: {sorted(commands - wired)}"

@@ -23,7 +23,7 @@ from aftershock.models.lrgnet_train import (
     room_variant,
     simulate_growth,
     voxel_truth,
-    without_colour,
+    without_color,
 )
 from aftershock.models.transfer_split import HELDOUT_GENERATOR
 from aftershock.pipeline.cli import main
@@ -344,11 +344,11 @@ def test_training_schedule_and_buildings() -> None:
         assert len(seeds) > 1 and len({*seeds, *VALIDATION_SEEDS[g], *HELDOUT_SEEDS[g]}) == len(seeds) + 2
 
 
-def test_training_rooms_without_colour_are_what_inference_sees() -> None:
+def test_training_rooms_without_color_are_what_inference_sees() -> None:
     """Colour-free training rooms carry no colour at all, so their colour features are zero as at inference;
     a room variant keeps most points, each moved by at most a few centimetres, with its labels."""
     cloud = small_room()
-    plain = without_colour(cloud)
+    plain = without_color(cloud)
     assert plain.colors is None and np.array_equal(plain.instance_ids, cloud.instance_ids)
     assert np.all(voxelise(plain, 0.1).features[:, 6:9] == 0) and voxelise(cloud, 0.1).features[:, 6:9].max() > 0
     rng = np.random.default_rng(0)
@@ -478,24 +478,24 @@ def test_weights_of_the_older_layout_read_its_first_columns(tmp_path: Path) -> N
     assert len(np.unique(res.instance_ids)) > 1
 
 
-def test_settings_follow_the_clouds_colour_mode() -> None:
+def test_settings_follow_the_clouds_color_mode() -> None:
     """Growth and consolidation take the defaults of the cloud's mode (with colour or without), a value the user
     sets serves both modes, and `refine_cloud` on a cloud without colour is the run with the colour-free values
     given by hand."""
     mono = small_room()
     mono.colors = None
-    with_colour, without = LRGNET_MODE_DEFAULTS[True], LRGNET_MODE_DEFAULTS[False]
-    assert with_colour.keys() == without.keys() and with_colour != without
-    assert LRGNetConfig().for_colour(True).model_dump(include=set(with_colour)) == with_colour
-    assert LRGNetConfig().for_colour(False).model_dump(include=set(without)) == without
-    assert LRGNetConfig(add_threshold=0.7).for_colour(False).add_threshold == 0.7
+    with_color, without = LRGNET_MODE_DEFAULTS[True], LRGNET_MODE_DEFAULTS[False]
+    assert with_color.keys() == without.keys() and with_color != without
+    assert LRGNetConfig().for_color(True).model_dump(include=set(with_color)) == with_color
+    assert LRGNetConfig().for_color(False).model_dump(include=set(without)) == without
+    assert LRGNetConfig(add_threshold=0.7).for_color(False).add_threshold == 0.7
     net = LRGNet().eval()
     assert Grower(voxelise(mono, 0.1), net, LRGNetConfig()).cfg.add_threshold == without["add_threshold"]
-    assert Grower(voxelise(small_room(), 0.1), net, LRGNetConfig()).cfg.add_threshold == with_colour["add_threshold"]
+    assert Grower(voxelise(small_room(), 0.1), net, LRGNetConfig()).cfg.add_threshold == with_color["add_threshold"]
     cfg = LRGNetConfig(max_steps=20)
     by_default = refine_cloud(mono, cfg).instance_ids
     assert np.array_equal(by_default, refine_cloud(mono, LRGNetConfig(max_steps=20, **without)).instance_ids)
-    assert not np.array_equal(by_default, refine_cloud(mono, LRGNetConfig(max_steps=20, **with_colour)).instance_ids)
+    assert not np.array_equal(by_default, refine_cloud(mono, LRGNetConfig(max_steps=20, **with_color)).instance_ids)
 
 
 def test_shipped_weights_segment_a_simple_room() -> None:

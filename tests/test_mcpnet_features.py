@@ -106,7 +106,7 @@ def test_the_layout_is_checked_by_name(tmp_path: Path) -> None:
             load_model(tmp_path / name)
 
 
-def test_colour_is_dropped_per_mission() -> None:
+def test_color_is_dropped_per_mission() -> None:
     """A robot without a camera has no colour for the whole log: training drops it mission by mission."""
     cfg = mcpnet_config()
     missions = [stage_mission(open_uri(f"sim://office?seed={s}&scans=3"), cfg) for s in (5, 6)]
@@ -153,7 +153,7 @@ def test_training_missions_never_touch_the_held_out_generator_or_seeds() -> None
     assert seeds == set(split.TRAIN_SEEDS) and not seeds & set(split.VALIDATION_SEEDS + split.TEST_SEEDS)
 
 
-def test_logs_without_colour_get_the_colour_free_network(tmp_path: Path) -> None:
+def test_logs_without_color_get_the_color_free_network(tmp_path: Path) -> None:
     """The shipped colour-free network: the layout with shape at two scales, trained on the training generators
     only; the labeller runs it on logs without colour, and a weights file named alone serves both kinds of log."""
     from aftershock.models.mcpnet import default_weights

@@ -143,7 +143,7 @@ def test_time_field_names_found(name: str) -> None:
     np.testing.assert_allclose(scan.times, np.linspace(0, 0.05, 6), atol=1e-7)
 
 
-def test_colours_packed_and_separate() -> None:
+def test_colors_packed_and_separate() -> None:
     cols = xyz_columns(3)
     rgb = np.array([[255, 0, 0], [0, 128, 0], [1, 2, 3]], np.uint8)
     packed = (rgb[:, 0].astype(np.uint32) << 16) | (rgb[:, 1].astype(np.uint32) << 8) | rgb[:, 2]

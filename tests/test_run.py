@@ -9,19 +9,19 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures import interruptible, write_ros2_mcap
+from faults_data import write_log
+from fixtures import chunk_offsets, interruptible, write_ros2_mcap
 from rrd_read import read_rrd, rrd_verify
 
 from aftershock.pipeline.classes import NUM_CLASSES, SemanticClass
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.config import load_config
 from aftershock.pipeline.stream import run_stream
-from aftershock.pipeline.types import RunInfo, Scan
+from aftershock.pipeline.types import RunInfo
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks.rerun_sink import RerunSink
 
@@ -311,41 +311,7 @@ def test_unknown_labeller_and_bad_override(lidar_dir: Path, capsys) -> None:
     assert code == 2 and "map.voxel_size_m" in err
 
 
-def test_a_scan_registration_cannot_align_is_marked_and_the_run_goes_on(lidar_dir: Path) -> None:
-    from aftershock import sources
-
-    scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
-    scans.insert(2, scans[1].select(np.arange(30)))  # a scan of 30 points in the middle of the log
-    for k, s in enumerate(scans):
-        s.seq = k
-    cfg = load_config(None, ['label.labeller="region-growing"'])
-    result = run_stream(scans, cfg, [], RunInfo("test", "mcap"), notice=lambda _t: None)
-    assert result.summary.scans == 5 and result.summary.registration_failures == [2]
-
-
 # ----------------------------------------------------------------------------------- Ctrl-C
-
-
-def _interrupted(scans: list[Scan], after: int) -> Iterator[Scan]:
-    for k, s in enumerate(scans):
-        if k == after:
-            raise KeyboardInterrupt
-        yield s
-
-
-def test_interrupt_leaves_a_valid_recording_of_what_was_processed(lidar_dir: Path, tmp_path: Path) -> None:
-    from aftershock import sources
-
-    scans = list(sources.open(lidar_dir / "velodyne_vlp16_indoor.mcap"))
-    out = tmp_path / "stopped.rrd"
-    cfg = load_config(None, ['label.labeller="region-growing"'])
-    sink = RerunSink(out, False, None, cfg.rerun, False)
-    result = run_stream(_interrupted(scans, 3), cfg, [sink], RunInfo(str(out), "mcap"), notice=lambda _t: None)
-    assert result.summary.interrupted and result.summary.scans == 3
-    rec = read_rrd(out)
-    assert len(rec.times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE)) == 3
-    assert rec.under(L.MAP)
-    assert rrd_verify(out).returncode == 0
 
 
 def test_ctrl_c_on_the_command_line(tmp_path: Path) -> None:
@@ -412,7 +378,7 @@ def test_a_truth_stand_in_on_a_log_without_truth_is_refused(lidar_dir: Path, cap
 
 
 @pytest.mark.parametrize("color", [True, False])
-def test_the_on_demand_stages_and_exports_see_whether_the_log_had_colour(color: bool, tmp_path: Path) -> None:
+def test_the_on_demand_stages_and_exports_see_whether_the_log_had_color(color: bool, tmp_path: Path) -> None:
     """LRGNet and the damage assessment get the final map without colour when no scan had any (not the map's
     stand-in grey), so that a colour-free log is refined with the colour-free settings; the exported map of
     such a log reads back without colour (its PLY says the colour is a stand-in)."""
@@ -429,6 +395,27 @@ def test_the_on_demand_stages_and_exports_see_whether_the_log_had_colour(color: 
         on_final_map=lambda cloud, _sinks: seen.append(cloud),
     )  # fmt: skip
     assert len(seen) == 1 and len(seen[0]) == len(res.vmap) > 0
-    assert res.vmap.has_colour is color and (seen[0].colors is not None) is color
+    assert res.vmap.has_color is color and (seen[0].colors is not None) is color
     exported = read_cloud(sink.map_path)
     assert len(exported) == len(res.vmap) and (exported.colors is not None) is color
+
+
+def test_a_cut_log_with_damage_json_keeps_why_it_ended_beside_the_damage_report(tmp_path: Path, capsys) -> None:
+    """`run CUT.mcap --damage --json` on a log cut off in the middle of a chunk: `damage` says why the log
+    ended (as in summary.json and `info --json`), `damage_report` is the damage assessment (as in damage.json);
+    the report once overwrote the reason under one key (docs/json.md)."""
+    log = write_log(tmp_path / "log.mcap", 12, chunk_size=50_000)
+    start, length = chunk_offsets(log)[6]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(log.read_bytes()[: start + length // 2])
+    out = tmp_path / "out"
+    args = ["run", str(cut), "--labeller", "region-growing", "--damage", "--export", str(out), "-q", "--json"]
+    code, stdout, err = _run_cli(args, capsys)
+    assert code == 0, err
+    result = json.loads(stdout)
+    assert result["damaged_log"] is True and isinstance(result["damage"], str) and "cut off" in result["damage"]
+    assert 5 <= result["scans"] < 12
+    assert result["damage"] == json.loads((out / "summary.json").read_text())["damage"]
+    report = result["damage_report"]
+    assert {"cracks", "stories", "seconds"} <= set(report)
+    assert report == json.loads((out / "damage.json").read_text())

@@ -95,7 +95,7 @@ def test_randomize_is_seeded_and_explicit_keys_win() -> None:
     )
 
 
-def test_palettes_recolour_objects_not_labels() -> None:
+def test_palettes_recolor_objects_not_labels() -> None:
     nat, grey = generate("office", 2), generate("office", 2, palette="grey")
     assert np.array_equal(nat.mesh.class_ids, grey.mesh.class_ids)
     assert (grey.mesh.colors[:, 0] == grey.mesh.colors[:, 2]).all()
@@ -107,7 +107,7 @@ def test_palettes_recolour_objects_not_labels() -> None:
     assert not np.array_equal(rnd.mesh.colors, nat.mesh.colors)
 
 
-def test_colour_free_mission_has_no_rgb_field_in_the_mcap(tmp_path: Path) -> None:
+def test_color_free_mission_has_no_rgb_field_in_the_mcap(tmp_path: Path) -> None:
     out = tmp_path / "mono.mcap"
     env = dict(os.environ, CI="true")
     done = subprocess.run(

@@ -120,17 +120,17 @@ def test_unwritable_places_fail_at_construction(tmp_path: Path) -> None:
     assert list(fresh.iterdir()) == []
 
 
-def test_a_cloud_without_colour_reads_back_without_colour(tmp_path: Path) -> None:
+def test_a_cloud_without_color_reads_back_without_color(tmp_path: Path) -> None:
     """The PLY format carries red, green, blue always: grey (or colour made up by the caller) stands in, the header
     says so, and the cloud reads back without colour; a PLY with real colour keeps it."""
-    from aftershock.pipeline.cloud_io import STAND_IN_COLOUR_COMMENT, read_cloud, write_cloud
+    from aftershock.pipeline.cloud_io import STAND_IN_COLOR_COMMENT, read_cloud, write_cloud
     from aftershock.pipeline.types import LabelledCloud
 
     pts = np.random.default_rng(0).random((50, 3))
     grey = write_cloud(tmp_path / "grey.ply", LabelledCloud(pts))
-    assert STAND_IN_COLOUR_COMMENT.encode() in grey.read_bytes()[:1024]
+    assert STAND_IN_COLOR_COMMENT.encode() in grey.read_bytes()[:1024]
     assert read_cloud(grey).colors is None
     rgb = np.full((50, 3), 90, np.uint8)
     assert np.array_equal(read_cloud(write_cloud(tmp_path / "rgb.ply", LabelledCloud(pts, rgb))).colors, rgb)
-    made_up = write_cloud(tmp_path / "classes.ply", LabelledCloud(pts, rgb), stand_in_colour=True)
+    made_up = write_cloud(tmp_path / "classes.ply", LabelledCloud(pts, rgb), stand_in_color=True)
     assert read_cloud(made_up).colors is None

@@ -236,7 +236,7 @@ def test_refined_growth_and_damage_layers(tmp_path: Path) -> None:
     assert "AnnotationContext:context" in rec.components(L.WORLD)
 
 
-def test_embedding_colours_are_stable_across_scans() -> None:
+def test_embedding_colors_are_stable_across_scans() -> None:
     rng = np.random.default_rng(2)
     first = rng.normal(size=(300, 16))
     colors = EmbeddingColors()

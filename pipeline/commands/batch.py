@@ -15,7 +15,7 @@ from typing import Any, Final
 
 import typer
 
-from aftershock.pipeline.commands.run import LABELLER_HELP
+from aftershock.pipeline.commands import LABELLER_HELP
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import bar, enabled
 
@@ -81,94 +81,97 @@ def _counts(rows: list[dict[str, Any]]) -> dict[str, int]:
     }
 
 
-def register(app: typer.Typer) -> None:
-    @app.command()
-    def batch(
-        sources: list[str] = typer.Argument(
-            ..., help="Logs, folders of logs, globs, sim://… URIs, or text files listing them (one per line)."
-        ),
-        out: Path = typer.Option(..., "--out", help="Output folder: DIR/<mission>/ and DIR/missions.parquet."),
-        workers: int | None = typer.Option(
-            None, "--workers", min=1, help="Missions at a time (default: the cores; with --address the cluster's CPUs)."
-        ),
-        address: str | None = typer.Option(None, "--address", help="Join this Ray cluster (HOST:PORT of its head)."),
-        damage: bool = typer.Option(False, "--damage", help="Cracks and story drift/tilt on each mission's map."),
-        labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
-        config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
-        overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
-        max_scans: int | None = typer.Option(None, "--max-scans", help="Stop each mission after this many scans."),
-        worker_memory: float = typer.Option(
-            DEFAULT_WORKER_MEMORY_GB,
-            "--worker-memory",
-            min=0.1,
-            help="GB of memory per worker (Ray packs missions by it; bound enforced).",
-        ),
-        force: bool = typer.Option(False, "--force", help="Redo complete missions; write over another configuration."),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-        as_json: bool = typer.Option(False, "--json", help="Print the index rows as JSON."),
-    ) -> None:
-        """Run the stream (and with --damage the damage assessment) on many missions as Ray tasks."""
-        from aftershock.pipeline.commands import batch_run as br
-        from aftershock.pipeline.commands.batch_sources import expand_sources, name_missions
-        from aftershock.pipeline.commands.run import build_config
-        from aftershock.pipeline.commands.site_index import INDEX_FILE, write_index
+def batch(
+    sources: list[str] = typer.Argument(
+        ..., help="Logs, folders of logs, globs, sim://… URIs, or text files listing them (one per line)."
+    ),
+    out: Path = typer.Option(..., "--out", help="Output folder: DIR/<mission>/ and DIR/missions.parquet."),
+    workers: int | None = typer.Option(
+        None, "--workers", min=1, help="Missions at a time (default: the cores; with --address the cluster's CPUs)."
+    ),
+    address: str | None = typer.Option(None, "--address", help="Join this Ray cluster (HOST:PORT of its head)."),
+    damage: bool = typer.Option(False, "--damage", help="Cracks and story drift/tilt on each mission's map."),
+    labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
+    config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
+    overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
+    max_scans: int | None = typer.Option(None, "--max-scans", help="Stop each mission after this many scans."),
+    worker_memory: float = typer.Option(
+        DEFAULT_WORKER_MEMORY_GB,
+        "--worker-memory",
+        min=0.1,
+        help="GB of memory per worker (Ray packs missions by it; bound enforced).",
+    ),
+    force: bool = typer.Option(False, "--force", help="Redo complete missions; write over another configuration."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    as_json: bool = typer.Option(False, "--json", help="Print the index rows as JSON."),
+) -> None:
+    """Run the stream (and with --damage the damage assessment) on many missions as Ray tasks."""
+    from aftershock.pipeline.batch import folder as bf
+    from aftershock.pipeline.batch import ray_pool
+    from aftershock.pipeline.batch.site_index import INDEX_FILE, write_index
+    from aftershock.pipeline.batch.sources import expand_sources, name_missions
+    from aftershock.pipeline.mission import build_config
 
-        cfg = build_config(config, overrides, labeller, max_scans=max_scans)
-        if address is not None:
-            br.check_reachable(address)  # before anything is written, even when every mission is complete
-        out = out.expanduser().resolve()
-        missions = expand_sources(sources, exclude=out)
-        if not missions:
-            raise InputError("no sources given")
-        fingerprint, settings = br.config_fingerprint(cfg, damage)
-        br.prepare_output(out, fingerprint, settings, force)
-        missions = name_missions(missions, br.taken_names(out))
-        memory = int(worker_memory * 2**30)
-        tasks, known, _ = br.plan(missions, out, cfg, damage, force, memory)
-        index = out / INDEX_FILE
-        rows = list(known)
-        write_index(index, br.merge_index(out, rows, fingerprint))
-        if not quiet and not as_json and known:
-            reused = sum(bool(r.get("reused")) for r in known)
-            if reused:
-                br.print_note(f"{reused} missions complete from an earlier run (--force redoes them)")
+    cfg = build_config(config, overrides, labeller, max_scans=max_scans)
+    if address is not None:
+        ray_pool.check_reachable(address)  # before anything is written, even when every mission is complete
+    out = out.expanduser().resolve()
+    missions = expand_sources(sources, exclude=out)
+    if not missions:
+        raise InputError("no sources given")
+    fingerprint, settings = bf.config_fingerprint(cfg, damage)
+    bf.prepare_output(out, fingerprint, settings, force)
+    missions = name_missions(missions, bf.taken_names(out))
+    memory = int(worker_memory * 2**30)
+    tasks, known, _ = bf.plan(missions, out, cfg, damage, force, memory)
+    index = out / INDEX_FILE
+    rows = list(known)
+    write_index(index, bf.merge_index(out, rows, fingerprint))
+    if not quiet and not as_json and known:
+        reused = sum(bool(r.get("reused")) for r in known)
+        if reused:
+            print_note(f"{reused} missions complete from an earlier run (--force redoes them)")
 
-        show = enabled(quiet)
-        with bar(len(missions), "missions", unit="mission", show=show) as b:
-            b.update(len(known))
+    show = enabled(quiet)
+    with bar(len(missions), "missions", unit="mission", show=show) as b:
+        b.update(len(known))
 
-            def on_update(row: dict[str, Any] | None, running: dict[str, tuple[int, float]]) -> None:
-                if row is not None:
-                    rows.append(row)
-                    b.update(1)
-                    write_index(index, br.merge_index(out, rows, fingerprint))  # up to date after every mission
-                if running:
-                    shown = (f"{_short(k)} {n} scans {r:.1f}/s" for k, (n, r) in sorted(running.items()))
-                    b.set_postfix_str(" | ".join(shown))
+        def on_update(row: dict[str, Any] | None, running: dict[str, tuple[int, float]]) -> None:
+            if row is not None:
+                rows.append(row)
+                b.update(1)
+                write_index(index, bf.merge_index(out, rows, fingerprint))  # up to date after every mission
+            if running:
+                shown = (f"{_short(k)} {n} scans {r:.1f}/s" for k, (n, r) in sorted(running.items()))
+                b.set_postfix_str(" | ".join(shown))
 
-            run = br.run_missions(tasks, address, workers, memory, on_update)
-        finished = {r["mission"] for r in rows}
-        rows.extend(r for r in run.rows if r["mission"] not in finished)  # interrupted ones
-        all_rows = br.merge_index(out, rows, fingerprint)
-        write_index(index, all_rows)
-        this_run = sorted((r for r in rows), key=lambda r: r["mission"])
-        if as_json:
-            payload = {
-                "index": str(index),
-                "workers": run.workers,
-                "wall_time_s": round(run.wall_time_s, 3),
-                "interrupted": run.interrupted,
-                "counts": _counts(this_run),
-                "missions": this_run,
-            }
-            print(json.dumps(payload, indent=2))
-        else:
-            print_table(this_run, index, run.wall_time_s, run.workers)
-        if run.interrupted:
-            print(
-                "aftershock: interrupted; finished missions are complete, the others are redone next time",
-                file=sys.stderr,
-            )
-            raise typer.Exit(130)
-        if any(r["status"] != "ok" for r in this_run):
-            raise typer.Exit(1)
+        run = ray_pool.run_missions(tasks, address, workers, memory, on_update)
+    finished = {r["mission"] for r in rows}
+    rows.extend(r for r in run.rows if r["mission"] not in finished)  # interrupted ones
+    all_rows = bf.merge_index(out, rows, fingerprint)
+    write_index(index, all_rows)
+    this_run = sorted((r for r in rows), key=lambda r: r["mission"])
+    if as_json:
+        payload = {
+            "index": str(index),
+            "workers": run.workers,
+            "wall_time_s": round(run.wall_time_s, 3),
+            "interrupted": run.interrupted,
+            "counts": _counts(this_run),
+            "missions": this_run,
+        }
+        print(json.dumps(payload, indent=2))
+    else:
+        print_table(this_run, index, run.wall_time_s, run.workers)
+    if run.interrupted:
+        print(
+            "aftershock: interrupted; finished missions are complete, the others are redone next time",
+            file=sys.stderr,
+        )
+        raise typer.Exit(130)
+    if any(r["status"] != "ok" for r in this_run):
+        raise typer.Exit(1)
+
+
+def print_note(text: str) -> None:
+    print(f"aftershock: {text}", file=sys.stderr)

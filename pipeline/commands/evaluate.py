@@ -18,8 +18,10 @@ from typing import Any, Final
 import numpy as np
 import typer
 
+from aftershock.pipeline.commands import LABELLER_HELP
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.labellers.oracle import ORACLES
+from aftershock.pipeline.mission import build_config, open_scans
 from aftershock.pipeline.stream import StreamResult, run_stream
 from aftershock.pipeline.types import Scan
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -29,7 +31,7 @@ POSES: Final = ("estimated", "truth")
 
 def evaluate_map(vmap: VoxelMap) -> dict[str, Any]:
     """Scores of the map's predictions against the true labels of its stored points."""
-    # Imported here: scikit-learn costs every command ~2 s of start-up otherwise (the CLI registers them all).
+    # Imported here: scikit-learn costs every command ~2 s of start-up otherwise (the CLI imports them all).
     from aftershock.pipeline.metrics import cluster_scores, instance_scores, semantic_scores
 
     if not vmap.has_truth:
@@ -134,51 +136,47 @@ def print_report(rep: dict[str, Any]) -> None:
     print(f"speed: {rep['scans_per_second']:.1f} scans/s; ms per scan: {timing}")
 
 
-def register(app: typer.Typer) -> None:
-    from aftershock.pipeline.commands.run import LABELLER_HELP, build_config, open_scans
-
-    @app.command("eval")
-    def evaluate(
-        source: str = typer.Argument(..., help="A log with ground truth (class_id/instance_id fields), or sim://…"),
-        labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
-        config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
-        overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
-        topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),
-        start: float | None = typer.Option(None, "--start", help="Seconds from the log start to begin at."),
-        end: float | None = typer.Option(None, "--end", help="Seconds from the log start to stop at."),
-        every: int | None = typer.Option(None, "--every", help="Use every N-th scan."),
-        max_scans: int | None = typer.Option(None, "--max-scans", help="Stop after this many scans."),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or notices."),
-        as_json: bool = typer.Option(False, "--json", help="Print the scores as JSON."),
-        poses: str = typer.Option(
-            "estimated",
-            "--poses",
-            help="estimated: register with KISS-ICP; truth: place scans with the log's true poses, so labelling "
-            "errors can be told apart from registration errors.",
-        ),
-        oracle: str = typer.Option(
-            "none",
-            "--oracle",
-            help="classes: the true class stands in for the labeller's; objects: a vector per true object stands "
-            "in for its embeddings — to tell class, embedding and clustering errors apart.",
-        ),
-    ) -> None:
-        """Score the online labelling and registration against the ground truth in a log."""
-        if poses not in POSES:
-            raise InputError(f"unknown --poses {poses!r}; choose one of: {', '.join(POSES)}")
-        if oracle not in ORACLES:
-            raise InputError(f"unknown --oracle {oracle!r}; choose one of: {', '.join(ORACLES)}")
-        cfg = build_config(config, overrides, labeller, topic, start, end, every, max_scans)
-        cfg.registration.poses = poses  # type: ignore[assignment]  # checked above
-        cfg.label.oracle = oracle  # type: ignore[assignment]  # checked above
-        scans, info = open_scans(source, cfg, quiet)
-        scans = require_truth(scans, source, poses=poses == "truth")
-        notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
-        result = run_stream(scans, cfg, [], info, notice)
-        rep = report(result, poses, oracle)
-        if as_json:
-            print(json.dumps(rep, indent=2))
-        else:
-            print_report(rep)
-        if result.summary.interrupted:
-            raise typer.Exit(130)
+def evaluate(
+    source: str = typer.Argument(..., help="A log with ground truth (class_id/instance_id fields), or sim://…"),
+    labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
+    config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
+    overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
+    topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),
+    start: float | None = typer.Option(None, "--start", help="Seconds from the log start to begin at."),
+    end: float | None = typer.Option(None, "--end", help="Seconds from the log start to stop at."),
+    every: int | None = typer.Option(None, "--every", help="Use every N-th scan."),
+    max_scans: int | None = typer.Option(None, "--max-scans", help="Stop after this many scans."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or notices."),
+    as_json: bool = typer.Option(False, "--json", help="Print the scores as JSON."),
+    poses: str = typer.Option(
+        "estimated",
+        "--poses",
+        help="estimated: register with KISS-ICP; truth: place scans with the log's true poses, so labelling "
+        "errors can be told apart from registration errors.",
+    ),
+    oracle: str = typer.Option(
+        "none",
+        "--oracle",
+        help="classes: the true class stands in for the labeller's; objects: a vector per true object stands "
+        "in for its embeddings — to tell class, embedding and clustering errors apart.",
+    ),
+) -> None:
+    """Score the online labelling and registration against the ground truth in a log."""
+    if poses not in POSES:
+        raise InputError(f"unknown --poses {poses!r}; choose one of: {', '.join(POSES)}")
+    if oracle not in ORACLES:
+        raise InputError(f"unknown --oracle {oracle!r}; choose one of: {', '.join(ORACLES)}")
+    cfg = build_config(config, overrides, labeller, topic, start, end, every, max_scans)
+    cfg.registration.poses = poses  # type: ignore[assignment]  # checked above
+    cfg.label.oracle = oracle  # type: ignore[assignment]  # checked above
+    scans, info = open_scans(source, cfg, quiet)
+    scans = require_truth(scans, source, poses=poses == "truth")
+    notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
+    result = run_stream(scans, cfg, [], info, notice)
+    rep = report(result, poses, oracle)
+    if as_json:
+        print(json.dumps(rep, indent=2))
+    else:
+        print_report(rep)
+    if result.summary.interrupted:
+        raise typer.Exit(130)

@@ -54,19 +54,17 @@ def format_summary(summary) -> str:
     return "\n".join(lines)
 
 
-def register(app: typer.Typer) -> None:
-    @app.command()
-    def info(
-        path: str = typer.Argument(..., help="MCAP file, ROS bag, or folder/glob of .pcd/.ply/.bin files."),
-        as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
-        topic: str | None = typer.Option(None, "--topic", help="Report only this point-cloud topic."),
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-    ) -> None:
-        """Topics, duration, fields and points per scan of a log: what to know before replaying it."""
-        from aftershock.sources.inspect import inspect
+def info(
+    path: str = typer.Argument(..., help="MCAP file, ROS bag, or folder/glob of .pcd/.ply/.bin files."),
+    as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
+    topic: str | None = typer.Option(None, "--topic", help="Report only this point-cloud topic."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Topics, duration, fields and points per scan of a log: what to know before replaying it."""
+    from aftershock.sources.inspect import inspect
 
-        summary = inspect(path, progress=progress.enabled(quiet), topic=topic)
-        if as_json:
-            print(json.dumps(summary.to_json(), indent=2))
-        else:
-            print(format_summary(summary))
+    summary = inspect(path, progress=progress.enabled(quiet), topic=topic)
+    if as_json:
+        print(json.dumps(summary.to_json(), indent=2))
+    else:
+        print(format_summary(summary))

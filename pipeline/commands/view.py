@@ -66,64 +66,62 @@ def check_pair(log: Path, recording: Path) -> str:
     return rid
 
 
-def register(app: typer.Typer) -> None:
-    @app.command()
-    def view(
-        log: Path = typer.Argument(..., help="The mission's MCAP log."),
-        recording: Path | None = typer.Argument(None, help="Its recording from `aftershock run --save`."),
-        web: bool = typer.Option(False, "--web", help="Serve the web viewer instead of opening the native one."),
-        bind: str = typer.Option("127.0.0.1", "--bind", help="Address the viewer listens on."),
-        port: int | None = typer.Option(None, "--port", help="gRPC port of the viewer (default: a free one)."),
-        topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),
-        save: Path | None = typer.Option(None, "--save", help="Write log and recording into one .rrd instead."),
-        force: bool = typer.Option(False, "--force", help="Overwrite --save's file."),
-    ) -> None:
-        """Open a log and its recording together, lined up on the log's timelines."""
-        from aftershock import sources
-        from aftershock.pipeline.cloud_io import check_output
-        from aftershock.sinks.rerun_sink import recording_id_for
+def view(
+    log: Path = typer.Argument(..., help="The mission's MCAP log."),
+    recording: Path | None = typer.Argument(None, help="Its recording from `aftershock run --save`."),
+    web: bool = typer.Option(False, "--web", help="Serve the web viewer instead of opening the native one."),
+    bind: str = typer.Option("127.0.0.1", "--bind", help="Address the viewer listens on."),
+    port: int | None = typer.Option(None, "--port", help="gRPC port of the viewer (default: a free one)."),
+    topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),
+    save: Path | None = typer.Option(None, "--save", help="Write log and recording into one .rrd instead."),
+    force: bool = typer.Option(False, "--force", help="Overwrite --save's file."),
+) -> None:
+    """Open a log and its recording together, lined up on the log's timelines."""
+    from aftershock import sources
+    from aftershock.pipeline.cloud_io import check_output
+    from aftershock.sinks.rerun_sink import recording_id_for
 
-        check_log(log)
-        rid = check_pair(log, recording) if recording is not None else None
-        desc = sources.describe(log, topic)
-        out = check_output(save, force) if save is not None else None
+    check_log(log)
+    rid = check_pair(log, recording) if recording is not None else None
+    desc = sources.describe(log, topic)
+    out = check_output(save, force) if save is not None else None
 
-        import rerun as rr
-        from rerun.chunk import McapReader, RrdReader
+    import rerun as rr
+    from rerun.chunk import McapReader, RrdReader
 
-        from aftershock.sinks import rerun_blueprint as L
-        from aftershock.sinks.rerun_viewer import start_viewer
+    from aftershock.sinks import rerun_blueprint as L
+    from aftershock.sinks.rerun_viewer import start_viewer
 
-        rec = rr.RecordingStream(APPLICATION_ID, recording_id=rid or recording_id_for(desc.log_id))
-        rr.set_log_time_enabled(False, recording=rec)
-        blueprint = L.default_blueprint(log_topic=desc.topic if desc.viewer_reads else None)
-        viewer = None
-        if out is not None:
-            rec.set_sinks(rr.FileSink(out), default_blueprint=blueprint)
-        else:
-            viewer = start_viewer(web=web, bind=bind, port=port)
-            rec.set_sinks(rr.GrpcSink(viewer.grpc_url), default_blueprint=blueprint)
-        if recording is not None:
-            rec.send_chunks(RrdReader(recording).stream())
-        rec.send_chunks(McapReader(log).stream())
-        rec.flush()
-        if out is not None:
-            rec.disconnect()
-            print(f"wrote {out}: {log.name}" + (f" with {recording.name}" if recording else ""))
-            return
-        assert viewer is not None
-        if viewer.web_url is None:
-            rec.disconnect()
-            print(f"opened in the Rerun viewer ({viewer.grpc_url})")
-            return
-        print(f"open {viewer.web_url} in a browser; Ctrl-C stops the viewer", flush=True)
-        try:
-            assert viewer.process is not None
-            viewer.process.wait()
-        except KeyboardInterrupt:
-            print("aftershock: viewer stopped", file=sys.stderr)
-        finally:
-            rec.disconnect()
-            if viewer.process is not None and viewer.process.poll() is None:
-                viewer.process.terminate()
-                viewer.process.wait(timeout=10)
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=rid or recording_id_for(desc.log_id))
+    rr.set_log_time_enabled(False, recording=rec)
+    blueprint = L.default_blueprint(log_topic=desc.topic if desc.raw_in_log else None)
+    viewer = None
+    if out is not None:
+        rec.set_sinks(rr.FileSink(out), default_blueprint=blueprint)
+    else:
+        viewer = start_viewer(web=web, bind=bind, port=port)
+        rec.set_sinks(rr.GrpcSink(viewer.grpc_url), default_blueprint=blueprint)
+    if recording is not None:
+        rec.send_chunks(RrdReader(recording).stream())
+    rec.send_chunks(McapReader(log).stream())
+    rec.flush()
+    if out is not None:
+        rec.disconnect()
+        print(f"wrote {out}: {log.name}" + (f" with {recording.name}" if recording else ""))
+        return
+    assert viewer is not None
+    if viewer.web_url is None:
+        rec.disconnect()
+        print(f"opened in the Rerun viewer ({viewer.grpc_url})")
+        return
+    print(f"open {viewer.web_url} in a browser; Ctrl-C stops the viewer", flush=True)
+    try:
+        assert viewer.process is not None
+        viewer.process.wait()
+    except KeyboardInterrupt:
+        print("aftershock: viewer stopped", file=sys.stderr)
+    finally:
+        rec.disconnect()
+        if viewer.process is not None and viewer.process.poll() is None:
+            viewer.process.terminate()
+            viewer.process.wait(timeout=10)

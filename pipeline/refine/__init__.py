@@ -43,7 +43,7 @@ class RefineResult:
     segments: int = 0
     voxels: int = 0
     seconds: float = 0.0
-    colour: bool = True  # the cloud had colour, so it was grown with that mode's settings
+    color: bool = True  # the cloud had colour, so it was grown with that mode's settings
     settings: dict[str, float] = field(default_factory=dict)  # the mode-dependent settings it was grown with
 
 
@@ -89,7 +89,7 @@ def refine_cloud(
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
-    cfg = cfg.for_colour(vc.colour)  # growth and consolidation settings of the cloud's mode, as the Grower's
+    cfg = cfg.for_color(vc.color)  # growth and consolidation settings of the cloud's mode, as the Grower's
     vc.features = vc.features[:, : net.in_features]  # weights of an older layout read its first columns
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # thousands of small products: extra threads only add overhead (measured 20x slower)
@@ -113,8 +113,8 @@ def refine_cloud(
         segments=len(np.unique(labels)),
         voxels=len(vc),
         seconds=time.perf_counter() - t0,
-        colour=vc.colour,
-        settings=cfg.model_dump(include=set(LRGNET_MODE_DEFAULTS[vc.colour])),
+        color=vc.color,
+        settings=cfg.model_dump(include=set(LRGNET_MODE_DEFAULTS[vc.color])),
     )
 
 
@@ -131,7 +131,7 @@ def baseline_cloud(cloud: LabelledCloud, name: str, cfg: LRGNetConfig, vc: Voxel
         segments=len(np.unique(labels)),
         voxels=len(vc),
         seconds=time.perf_counter() - t0,
-        colour=vc.colour,
+        color=vc.color,
     )
 
 

@@ -52,7 +52,7 @@ class VoxelCloud:
     adjacency: np.ndarray  # (M, K) int64 indices of the occupied neighbouring voxels, -1 where empty
     voxel_of_point: np.ndarray  # (N,) int64 voxel index of every raw point
     first_point: np.ndarray  # (M,) int64 index of the first raw point of every voxel (for its labels)
-    colour: bool = True  # the cloud had colour (without, the colour features are zero)
+    color: bool = True  # the cloud had colour (without, the colour features are zero)
 
     def __len__(self) -> int:
         return len(self.points)

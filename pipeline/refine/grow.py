@@ -73,7 +73,7 @@ class Grower:
         self.vc = vc
         self.net = net
         self.plane = reads_plane(net.in_features)  # weights of layout 3 read the per-step plane features too
-        self.cfg = cfg.for_colour(vc.colour)  # the add threshold depends on whether the cloud has colour
+        self.cfg = cfg.for_color(vc.color)  # the add threshold depends on whether the cloud has colour
         self.rng = np.random.default_rng(cfg.seed)
         self.labelled = np.zeros(len(vc), bool)
         self._touched = np.zeros(len(vc), bool)

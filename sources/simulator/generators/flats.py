@@ -54,7 +54,7 @@ TILES: Final = ((228, 230, 232), (190, 200, 205), (215, 205, 185), (120, 140, 15
 WOOD_FLOORS: Final = ((186, 140, 92), (150, 105, 65), (205, 170, 125), (110, 80, 55), (170, 150, 120))
 CARPETS: Final = ((120, 120, 125), (90, 100, 130), (160, 145, 120), (110, 125, 100), (140, 90, 90))
 COMMON_FLOORS: Final = ((170, 165, 155), (120, 110, 100), (150, 160, 165), (95, 105, 95), (185, 175, 150))
-DOOR_COLOURS: Final = ((245, 245, 242), (170, 125, 85), (120, 85, 60), (90, 100, 120), (200, 185, 160))
+DOOR_COLORS: Final = ((245, 245, 242), (170, 125, 85), (120, 85, 60), (90, 100, 120), (200, 185, 160))
 FRAMES: Final = ((245, 245, 245), (70, 70, 72), (140, 100, 70))
 CEILINGS: Final = ((248, 248, 245), (238, 236, 230))
 ROOM_KIND: Final = {"corridor": "corridor", "lobby": "open"}
@@ -107,7 +107,7 @@ def build(seed: int) -> Scene:
     part_t = float(r_plan.choice([0.08, 0.1, 0.12, 0.15]))
     party_t = float(r_plan.choice([0.2, 0.22, 0.25]))
     outer_paint = WALLPAPER[int(r_plan.integers(len(WALLPAPER)))]
-    door_col = DOOR_COLOURS[int(r_plan.integers(len(DOOR_COLOURS)))]
+    door_col = DOOR_COLORS[int(r_plan.integers(len(DOOR_COLORS)))]
     frame_col = FRAMES[int(r_plan.integers(len(FRAMES)))]
     ceil_col = CEILINGS[int(r_plan.integers(len(CEILINGS)))]
     floor_inst, ceil_inst = b.new_instance(C.FLOOR), b.new_instance(C.CEILING)
