@@ -17,8 +17,9 @@ def structure_frame(frame: Frame, vmap: VoxelMap, model: StructureModel) -> Fram
     if frame.pose is not None and np.isfinite(frame.pose).all():
         model.update(vmap, float(frame.pose[2, 3]))
     model.apply(vmap)
-    if frame.labels is not None and frame.kept_rows is not None and frame.keep is not None and len(frame.kept_rows):
-        frame.labels.class_ids[np.flatnonzero(frame.keep)] = vmap.class_ids[frame.kept_rows]
+    kept = frame.map_rows
+    if frame.labels is not None and kept is not None and len(kept.rows):
+        frame.labels.class_ids[kept.points] = vmap.class_ids[kept.rows]
     return frame
 
 
