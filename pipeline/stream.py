@@ -359,7 +359,7 @@ def _set_up(
         clusterer=InstanceClusterer(cfg.cluster, labeller.affinity, labeller.embedding_dim),
         t_start=t_start,
     )
-    if cfg.structure.enabled:
+    if cfg.structure.enabled and cfg.label.oracle != "classes":  # the true classes leave nothing to fuse
         run.structure = StructureModel(cfg.structure, environment, run.vmap.voxel_size)
     return run, (s for part in (skipped, [first], it) for s in part)
 
