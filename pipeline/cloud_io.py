@@ -1,5 +1,6 @@
 """Labelled point-cloud files in the DESIGN.md format: PLY with `x y z`, `red green blue` and, where known,
-`class_id`, `instance_id` (and optionally `intensity`, `nx ny nz`). Inputs and outputs use the same format."""
+`class_id`, `instance_id` (and optionally `intensity`, `nx ny nz`, `confidence`). Inputs and outputs use the same
+format."""
 
 from __future__ import annotations
 
@@ -139,10 +140,11 @@ def read_cloud(path: str | Path) -> LabelledCloud:
         normals = np.stack([v["nx"], v["ny"], v["nz"]], axis=1).astype(np.float32)
     class_ids = np.asarray(v["class_id"]).astype(np.uint16) if "class_id" in names else None
     instance_ids = np.asarray(v["instance_id"]).astype(np.uint32) if "instance_id" in names else None
-    return LabelledCloud(points, colors, intensity, class_ids, instance_ids, normals)
+    confidence = np.asarray(v["confidence"], dtype=np.float32) if "confidence" in names else None
+    return LabelledCloud(points, colors, intensity, class_ids, instance_ids, normals, confidence)
 
 
-_KNOWN_FLOATS: Final = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha"})
+_KNOWN_FLOATS: Final = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha", "confidence"})
 
 
 def finite_points(
@@ -198,6 +200,9 @@ def write_cloud(
     if cloud.instance_ids is not None:
         fields.append(("instance_id", "i4"))
         columns["instance_id"] = cloud.instance_ids
+    if cloud.confidence is not None:
+        fields.append(("confidence", "f4"))
+        columns["confidence"] = cloud.confidence
     data = np.empty(n, dtype=fields)
     for name, _ in fields:
         data[name] = columns[name]

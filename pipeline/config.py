@@ -166,6 +166,9 @@ class RerunConfig(_Section):
     # opens in Rerun's web viewer in minutes instead of not at all); 0 = every one.
     compact_above_mb: NonNegative = 64.0
     embeddings: bool = True  # with debug_layers: the MCPNet embedding layer too
+    # Map voxels whose labeller confidence (its probability for the class shown) is under this are drawn again
+    # in `world/uncertain` in one warning colour, so that a glance shows where the labels are guesses.
+    uncertain_below: Fraction = 0.5
 
 
 class LRGNetConfig(_Section):

@@ -1,7 +1,8 @@
 """File exports into one folder: the final labelled map, the trajectory in two common text formats, a summary.
 
 - `map.ply`: the final labelled map in the DESIGN.md PLY format (`x y z`, `red green blue` = class colour,
-  `class_id`, `instance_id`), through `pipeline.cloud_io.write_cloud`.
+  `class_id`, `instance_id`, and `confidence`: the labeller's probability for the class), through
+  `pipeline.cloud_io.write_cloud`.
 - `poses_tum.txt`: `timestamp tx ty tz qx qy qz qw` per scan (TUM RGB-D format, seconds since the epoch).
 - `poses_kitti.txt`: the first three rows of each 4 x 4 pose, row-major, 12 numbers per line (KITTI odometry).
 - `summary.json`: the `RunSummary` fields, the source, and per-class instance and point counts of the map.
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import json
 from contextlib import suppress
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Final, TextIO
 
@@ -138,9 +139,7 @@ class FileExportSink(Sink):
             return
         cloud = final_map
         if cloud.class_ids is not None and cloud.colors is None:
-            cloud = LabelledCloud(
-                cloud.points, class_colors(cloud.class_ids), cloud.intensity, cloud.class_ids, cloud.instance_ids
-            )
+            cloud = replace(cloud, colors=class_colors(cloud.class_ids), normals=None)
         # the path was checked at construction; class colours stand in for a colour the log did not have
         write_cloud(self.map_path, cloud, force=True, stand_in_color=final_map.colors is None)
         data = asdict(summary)

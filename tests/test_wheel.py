@@ -23,7 +23,11 @@ from aftershock.pipeline.types import LabelledCloud
 
 REPO: Final = Path(__file__).resolve().parents[1]
 PACKAGE_FOLDERS: Final = {"pipeline": "pipeline", "sources": "sources", "sinks": "sinks", "models": "models"}
-SHIPPED: Final = ("aftershock/recordings/sample.mcap", "aftershock/models/weights/mcpnet.pt")
+SHIPPED: Final = (
+    "aftershock/recordings/sample.mcap",
+    "aftershock/models/weights/mcpnet.pt",
+    "aftershock/models/weights/scan_reference.json",  # the distribution check of every run reads it
+)
 
 
 def _source_tree(dest: Path) -> Path:
