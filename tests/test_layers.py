@@ -29,6 +29,7 @@ NAMESPACE: Final = "aftershock"
 
 VOCABULARY: Final = (
     *(f"pipeline.{m}" for m in ("types", "config", "errors", "classes", "geometry", "progress", "cloud_io")),
+    *(f"pipeline.{m}" for m in ("text", "limits", "outputs")),
     *("pipeline.pointcloud2", "pipeline.metrics", "pipeline.planecheck", "pipeline", "recordings"),
 )
 STAGES: Final = tuple(
