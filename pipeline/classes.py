@@ -1,7 +1,9 @@
 """The one class table: ids, names and colours shared by the simulator, the networks, the metrics and Rerun.
 
 The ids are part of the file formats (DESIGN.md): the order of the Stanford indoor benchmark, then debris.
-New classes are appended after the last one; 65535 means unlabelled.
+New classes are appended after the last one; 65535 means unlabelled. The networks predict the first
+`NETWORK_CLASSES` (their output heads); the classes after them come from the structure model alone
+(pipeline.structure): ground, the terrain a robot drives on outdoors.
 """
 
 from __future__ import annotations
@@ -27,10 +29,12 @@ class SemanticClass(IntEnum):
     BOARD = 11
     CLUTTER = 12
     DEBRIS = 13
+    GROUND = 14  # outdoors: the terrain (the structure model's, never a network's)
 
 
 UNLABELLED: Final = 65535
-NUM_CLASSES: Final = len(SemanticClass)
+NUM_CLASSES: Final = len(SemanticClass)  # every class a map can hold (metrics, formats, the viewer)
+NETWORK_CLASSES: Final = SemanticClass.DEBRIS + 1  # the classes the networks predict (their output heads)
 
 CLASS_NAMES: Final[tuple[str, ...]] = tuple(c.name.lower() for c in SemanticClass)
 
@@ -52,6 +56,7 @@ CLASS_COLORS: Final[np.ndarray] = np.array(
         [255, 240, 170],  # board: cream
         [128, 128, 128],  # clutter: grey
         [115, 60, 20],  # debris: dark brown
+        [110, 150, 80],  # ground: moss green
     ],
     dtype=np.uint8,
 )

@@ -224,6 +224,8 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
         "trajectory": result.trajectory.as_dict() if result.trajectory else None,
         "outputs": outputs,
+        "structure_elements": s.structure_elements,  # elements the structure model found, per kind
+        "structure_notes": result.notes,  # what it could not do (no floor: the labels are the network's alone)
         "warnings": s.warnings,  # said once per run and reason: scans outside the networks' training data
     }
     return out

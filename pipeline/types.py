@@ -268,5 +268,6 @@ class RunSummary:
     fragments: int = 0  # instances before those under the minimum object size were hidden (`instances` = shown)
     final_merges: int = 0  # instances merged by the end-of-run consolidation
     level_tilt_deg: float | None = None  # how far the first scan's z was from up (None: world not levelled)
+    structure_elements: dict[str, int] = field(default_factory=dict)  # structural elements found, per kind
     # what the run warned of once (scans outside the networks' training data, pipeline.scan_stats)
     warnings: list[str] = field(default_factory=list)

@@ -44,6 +44,7 @@ STAGES: Final = tuple(
         "cluster",
         "refine",
         "damage",
+        "structure",
         "trajectory",
         "scan_stats",
     )

@@ -54,6 +54,14 @@ def slab_bands(
     lo = float(z.min())
     edges = lo + bin_m * np.arange(int(np.ceil((z.max() - lo) / bin_m)) + 2)
     counts, _ = np.histogram(z, bins=edges)
+    return bands_of_counts(counts, edges, ratio, neighbourhood, merge_m)
+
+
+def bands_of_counts(
+    counts: np.ndarray, edges: np.ndarray, ratio: float, neighbourhood: int, merge_m: float
+) -> list[tuple[float, float]]:
+    """`slab_bands` of a height histogram (`counts` per bin between `edges`): the one test of a story slab,
+    shared by drift and the structure model (which keeps its histogram up to date as the map grows)."""
     size = 2 * (neighbourhood // 2) + 1
     local = median_filter(counts.astype(np.float64), size=size, mode="constant", cval=0.0)
     # Around an empty stretch the median is 0; a slab then needs at least the median of all non-empty bins.
@@ -91,6 +99,8 @@ def ransac_plane(
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(normals, axis=1)
     good = norm > 1e-12
+    if not good.any():  # every triple drawn lies on one line: no plane to find
+        return np.array([0.0, 0.0, 1.0, 0.0]), np.zeros(n, bool)
     normals, tri = normals[good] / norm[good, None], tri[good]
     d = -np.einsum("ij,ij->i", normals, tri[:, 0])
     sample = points[rng.choice(n, size=min(n, _RANSAC_SCORE_POINTS), replace=False)]
