@@ -428,7 +428,6 @@ class Config(_Section):
     cracks: CrackConfig = CrackConfig()
     drift: DriftConfig = DriftConfig()
     report: ReportConfig = ReportConfig()
-
     structure: StructureConfig = StructureConfig()
 
 
