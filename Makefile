@@ -59,7 +59,7 @@ bench-objects: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_objects.py
 
 bench-cracks: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_cracks_ridge.py tests/bench_cracks.py
+	$(BIN)/pytest -q -m slow -s tests/bench_cracks_region.py tests/bench_cracks_ridge.py tests/bench_cracks.py
 
 bench-lrgnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench_lrgnet.py

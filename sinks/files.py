@@ -10,8 +10,10 @@
 - `damage.json` (with `run --damage`): the damage report — cracks with length and width, stories with drift
   and tilt, and what could not be measured.
 
-Poses are the sensor poses at the scan stamps, written line by line as the scans are registered, so an
-interrupted run keeps every pose it computed; the map and summary are written at the end (also after Ctrl-C).
+Poses are the sensor poses at the scan stamps, written line by line as the scans are registered (into
+`poses_tum.txt.part`, renamed when the run ends), so an interrupted run keeps every pose it computed, and a killed
+one leaves them in the `.part` files; the map and summary are written at the end (also after Ctrl-C). The folder is
+locked while the run writes it (`pipeline.outputs.FolderLock`): a second run into it is refused naming the first.
 """
 
 from __future__ import annotations
@@ -25,11 +27,14 @@ from typing import Any, Final, TextIO
 import numpy as np
 
 from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES, class_colors
-from aftershock.pipeline.cloud_io import check_output, write_atomically, write_cloud
+from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.outputs import FolderLock, StreamedOutput, check_output, write_atomically
 from aftershock.pipeline.pointcloud2 import matrix_to_quaternion
 from aftershock.pipeline.sink import Sink, Stage
+from aftershock.pipeline.structure.elements import Element
 from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.sinks.structure_layer import write_structure_json
 
 MAP_FILE: Final = "map.ply"
 TUM_FILE: Final = "poses_tum.txt"
@@ -37,6 +42,7 @@ KITTI_FILE: Final = "poses_kitti.txt"
 SUMMARY_FILE: Final = "summary.json"
 REFINED_FILE: Final = "refined.ply"
 DAMAGE_FILE: Final = "damage.json"
+STRUCTURE_FILE: Final = "structure.json"
 
 
 def tum_line(stamp_ns: int, pose: np.ndarray) -> str:
@@ -84,16 +90,21 @@ class FileExportSink(Sink):
         self.folder = Path(folder)
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError("exists and is not a folder", self.folder)
+        self._lock = FolderLock(self.folder).acquire()
         self.map_path = check_output(self.folder / MAP_FILE, force)
         self.tum_path = check_output(self.folder / TUM_FILE, force)
         self.kitti_path = check_output(self.folder / KITTI_FILE, force)
         self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
         self.refined_path = check_output(self.folder / REFINED_FILE, force) if refine else None
         self.damage_path = check_output(self.folder / DAMAGE_FILE, force) if damage else None
+        self.structure_path = check_output(self.folder / STRUCTURE_FILE, force)
+        self._structure: tuple[list[Element], list[str]] | None = None
         self.force = force
         self._info: RunInfo | None = None
         self._tum: TextIO | None = None
         self._kitti: TextIO | None = None
+        self._tum_out = StreamedOutput(self.tum_path)
+        self._kitti_out = StreamedOutput(self.kitti_path)
         self._written: set[int] = set()
         self._poses_closed = False
         self._failed = False  # the disk refused a pose line: the map and summary are not attempted
@@ -147,8 +158,15 @@ class FileExportSink(Sink):
         if self._info is not None:
             data["source"] = asdict(self._info)
         data["files"] = {"map": MAP_FILE, "poses_tum": TUM_FILE, "poses_kitti": KITTI_FILE}
+        if self._structure is not None:
+            elements, notes = self._structure
+            data["files"]["structure"] = STRUCTURE_FILE
+            write_atomically(self.structure_path, lambda tmp: write_structure_json(tmp, elements, notes))
         text = json.dumps(data, indent=2) + "\n"
         write_atomically(self.summary_path, lambda tmp: tmp.write_text(text))
+
+    def structure(self, elements: list[Element], seq: int, notes: list[str]) -> None:
+        self._structure = (elements, notes)  # written with the map, at the end
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         if self.refined_path is not None:
@@ -167,7 +185,10 @@ class FileExportSink(Sink):
         write_atomically(self.damage_path, lambda tmp: tmp.write_text(text))
 
     def close(self) -> None:
-        self._close_poses()
+        try:
+            self._close_poses()
+        finally:
+            self._lock.release()
 
     def _open_poses(self) -> bool:
         """Open the pose files once (in `begin`, or with the first pose); False once they were closed."""
@@ -175,16 +196,16 @@ class FileExportSink(Sink):
             return False
         if self._tum is None or self._kitti is None:
             try:
-                self._tum = open(self.tum_path, "w")  # noqa: SIM115 (kept open for the whole run)
-                self._kitti = open(self.kitti_path, "w")  # noqa: SIM115
+                self._tum = self._tum_out.open("w")
+                self._kitti = self._kitti_out.open("w")
             except OSError as exc:
                 raise OutputError(f"cannot write: {exc.strerror}", self.folder) from None
         return True
 
     def _close_poses(self) -> None:
-        for f in (self._tum, self._kitti):
+        for f, out in ((self._tum, self._tum_out), (self._kitti, self._kitti_out)):
             if f is not None:
                 with suppress(OSError):  # a write that failed before was reported; the lines before it are kept
-                    f.close()
+                    out.close()
                 self._poses_closed = True
         self._tum = self._kitti = None

@@ -107,7 +107,7 @@ def test_wheel_holds_every_module_and_the_shipped_data(built: tuple[Path, Path])
     tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert tops == {"aftershock"}, f"the wheel installs more than the aftershock namespace: {tops}"
     entry_points = next(n for n in names if n.endswith(".dist-info/entry_points.txt"))
-    assert "aftershock = aftershock.pipeline.cli:entry" in zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "aftershock = aftershock.pipeline.__main__:entry" in zipfile.ZipFile(wheel).read(entry_points).decode()
 
 
 def test_sdist_holds_every_module_and_the_shipped_data(built: tuple[Path, Path]) -> None:
