@@ -368,7 +368,7 @@ class ReportConfig(_Section):
     # Storeys are re-measured on the map with up from the lowest slab: `run` levels a map from its first scan,
     # and on 2 drift frames (missing-slab 5, partial-collapse 6) that left 8-9 mm per storey, 0.3-2.6 mm with this
     drift_gravity: Literal["ground-plane", "frame-z"] = "ground-plane"
-    # Worst drift error per storey on those frames through run (2.6 mm; measure_drift alone: 1.90 mm, README)
+    # The worst drift error per storey seen on those frames through run (docs/benchmarks/report.md)
     drift_uncertainty_mm: Positive = 3.0
     # With drift_gravity frame-z: how far a levelled map's up may be off (0.31° seen on a drift frame)
     level_uncertainty_deg: Annotated[float, Field(ge=0, le=10)] = 0.35
