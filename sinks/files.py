@@ -91,13 +91,17 @@ class FileExportSink(Sink):
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError("exists and is not a folder", self.folder)
         self._lock = FolderLock(self.folder).acquire()
-        self.map_path = check_output(self.folder / MAP_FILE, force)
-        self.tum_path = check_output(self.folder / TUM_FILE, force)
-        self.kitti_path = check_output(self.folder / KITTI_FILE, force)
-        self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
-        self.refined_path = check_output(self.folder / REFINED_FILE, force) if refine else None
-        self.damage_path = check_output(self.folder / DAMAGE_FILE, force) if damage else None
-        self.structure_path = check_output(self.folder / STRUCTURE_FILE, force)
+        try:
+            self.map_path = check_output(self.folder / MAP_FILE, force)
+            self.tum_path = check_output(self.folder / TUM_FILE, force)
+            self.kitti_path = check_output(self.folder / KITTI_FILE, force)
+            self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
+            self.refined_path = check_output(self.folder / REFINED_FILE, force) if refine else None
+            self.damage_path = check_output(self.folder / DAMAGE_FILE, force) if damage else None
+            self.structure_path = check_output(self.folder / STRUCTURE_FILE, force)
+        except OutputError:
+            self._lock.release()  # a refused sink is never closed: it must not keep the folder locked
+            raise
         self._structure: tuple[list[Element], list[str]] | None = None
         self.force = force
         self._info: RunInfo | None = None
