@@ -37,40 +37,40 @@ lint: setup
 
 # Speed and memory of the whole stream (VLP-16 simulated missions with Rerun recording to a file).
 bench: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_pipeline.py
 
 # Its halves: the 300-scan stream against KISS-ICP alone (sequential and overlapped), and the 3,000-scan
 # mission (memory, compacted recording, web viewer picture; needs `pip install -e '.[screenshot]'` and chromium).
 bench-stream: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py -k whole_stream
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_pipeline.py -k whole_stream
 
 bench-long: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py -k long_mission
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_pipeline.py -k long_mission
 
 # Decoding, simulation and sink throughput.
 bench-io: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_sources.py tests/bench_simulator.py tests/bench_sinks.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_sources.py tests/bench/bench_simulator.py tests/bench/bench_sinks.py
 
 bench-mcpnet: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_mcpnet.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_mcpnet.py
 
 # Objects shown against true objects (instance precision/recall) on held-out missions, KISS-ICP and true poses.
 bench-objects: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_objects.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_objects.py
 
 bench-cracks: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_cracks.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_cracks.py
 
 bench-lrgnet: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_lrgnet.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_lrgnet.py
 
 # In-family against a scene generator no network was trained or tuned on, with and without colour.
 bench-transfer: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_transfer.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_transfer.py
 
 # Many missions at once: 8 simulated 300-scan missions on a local Ray instance, 2 workers against 1.
 bench-batch: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_batch.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_batch.py
 
 bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch
 
