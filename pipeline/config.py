@@ -142,6 +142,10 @@ class ClusterConfig(_Section):
     normal_angle_deg: Angle = 20.0  # region-growing baseline: neighbouring normals within this angle
     color_distance: NonNegative = 0.12  # region-growing baseline: RGB distance in [0, 1] units
 
+    def link_beta(self, environment: Environment) -> float:
+        """The embedding similarity that links two voxels in this environment (`beta_indoor` unless outdoor)."""
+        return self.beta_outdoor if environment is Environment.OUTDOOR else self.beta_indoor
+
 
 class RerunConfig(_Section):
     # The accumulated map shown in the viewer, and each scan's labelled layer, are downsampled to this (the

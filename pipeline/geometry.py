@@ -1,5 +1,6 @@
-"""Shared point-cloud geometry: voxel keys and downsampling, neighbourhoods, PCA normals and curvature,
-and the two classical region-growing segmentations (threshold and smoothness constraint).
+"""Shared point-cloud geometry: rigid motions (SE(3) log/exp, transforms), voxel keys and downsampling,
+neighbourhoods, connected components, PCA normals and curvature, and the two classical region-growing
+segmentations (threshold and smoothness constraint).
 
 Everything is vectorised: neighbourhoods come from scipy's cKDTree, covariances are batched, and
 region growing is phrased as connected components over the graph of neighbour pairs that pass the test.
@@ -13,8 +14,93 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 _CHUNK: Final = 200_000  # points per batch when gathering neighbourhoods, bounds memory
+
+
+# ------------------------------------------------------------------------------------------ SE(3) and vectors
+
+
+def hat(w: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) skew-symmetric matrices."""
+    z = np.zeros(len(w))
+    return np.stack(
+        [
+            np.stack([z, -w[:, 2], w[:, 1]], -1),
+            np.stack([w[:, 2], z, -w[:, 0]], -1),
+            np.stack([-w[:, 1], w[:, 0], z], -1),
+        ],
+        axis=1,
+    )
+
+
+def se3_log(pose: np.ndarray) -> np.ndarray:
+    """Twist (v, w) of a 4 x 4 rigid transform, translation part first (Sophus' order)."""
+    w = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
+    theta = float(np.linalg.norm(w))
+    wx = hat(w[None])[0]
+    if theta < 1e-9:
+        v_inv = np.eye(3) - 0.5 * wx
+    else:
+        half = 0.5 * theta
+        v_inv = np.eye(3) - 0.5 * wx + (1.0 - half / np.tan(half)) / theta**2 * (wx @ wx)
+    return np.r_[v_inv @ pose[:3, 3], w]
+
+
+def se3_exp_apply(twist: np.ndarray, scales: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """exp(s_i * twist) applied to point i, for all points at once."""
+    v, w = twist[:3], twist[3:]
+    s = np.asarray(scales, np.float64)
+    ws = s[:, None] * w[None, :]
+    theta = norms(ws)
+    small = theta < 1e-9
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(t) / t)
+    b = np.where(small, 0.5, (1.0 - np.cos(t)) / t**2)
+    c = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
+    p = np.asarray(points, np.float64)
+    # Rodrigues for R p and V v without building N matrices: w x p and w x (w x p).
+    wp = cross_rows(ws, p)
+    vs = s[:, None] * v[None, :]
+    wv = cross_rows(ws, vs)
+    return p + vs + a[:, None] * wp + b[:, None] * (cross_rows(ws, wp) + wv) + c[:, None] * cross_rows(ws, wv)
+
+
+def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross spends most of its time reshaping)."""
+    out = np.empty_like(b)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+def se3_exp(twist: np.ndarray) -> np.ndarray:
+    """4 x 4 rigid transform of a twist (v, w)."""
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(twist[3:]).as_matrix()
+    out[:3, 3] = se3_exp_apply(twist, np.ones(1), np.zeros((1, 3)))[0]
+    return out
+
+
+def sweep_motion(delta: np.ndarray, fraction: float) -> np.ndarray:
+    """The part `fraction` of a rigid motion (along its screw axis)."""
+    return delta if fraction == 1.0 else se3_exp(fraction * se3_log(delta))
+
+
+def transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points (N, 3) moved by a 4 x 4 pose. einsum, not `@`: a BLAS call for a 3-wide product spends more
+    time waking threads than computing on a busy machine."""
+    return np.einsum("ij,nj->ni", pose[:3, :3], points) + pose[:3, 3]
+
+
+def norms(v: np.ndarray) -> np.ndarray:
+    """Euclidean norms along the last axis (much faster than np.linalg.norm(..., axis=-1) for 3-vectors)."""
+    return np.sqrt(np.einsum("...i,...i->...", v, v))
+
+
+# ------------------------------------------------------------------------------------------ voxels
 
 
 def voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
@@ -106,13 +192,14 @@ def pca_normals(
     return normals, curvature
 
 
-def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+def graph_components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Component label (N,) of each of n nodes of the undirected graph of `pairs` (E, 2)."""
     graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
     return labels
 
 
-def _relabel_by_size(labels: np.ndarray, min_size: int) -> np.ndarray:
+def relabel_by_size(labels: np.ndarray, min_size: int) -> np.ndarray:
     """Segments as 1..S (largest first); segments smaller than `min_size` become 0."""
     _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
     order = np.argsort(-counts, kind="stable")
@@ -137,13 +224,13 @@ def threshold_region_growing(
     pairs = radius_pairs(points, radius_m)
     n = len(points)
     if len(pairs) == 0:
-        return _relabel_by_size(np.arange(n), min_size)
+        return relabel_by_size(np.arange(n), min_size)
     cos = np.abs(np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]))
     ok = cos >= np.cos(np.deg2rad(max_angle_deg))
     if colors is not None and max_color_dist is not None:
         rgb = np.asarray(colors, np.float32) / 255.0
         ok &= np.linalg.norm(rgb[pairs[:, 0]] - rgb[pairs[:, 1]], axis=1) < max_color_dist
-    return _relabel_by_size(_components(n, pairs[ok]), min_size)
+    return relabel_by_size(graph_components(n, pairs[ok]), min_size)
 
 
 def smoothness_region_growing(
@@ -170,7 +257,7 @@ def smoothness_region_growing(
     angle_ok = cos >= np.cos(np.deg2rad(max_angle_deg))
     smooth = curvature < curvature_threshold
     both = angle_ok & smooth[src] & smooth[dst]
-    labels = _components(n, np.stack([src[both], dst[both]], axis=1))
+    labels = graph_components(n, np.stack([src[both], dst[both]], axis=1))
     # Rough points attach to the smooth neighbour of lowest curvature that passes the angle test.
     attach = angle_ok & ~smooth[src] & smooth[dst]
     if attach.any():
@@ -179,7 +266,7 @@ def smoothness_region_growing(
         s, d = s[order], d[order]
         first = np.r_[True, s[1:] != s[:-1]]
         labels[s[first]] = labels[d[first]]
-    return _relabel_by_size(labels, min_size)
+    return relabel_by_size(labels, min_size)
 
 
 def attach_small_segments(points: np.ndarray, labels: np.ndarray, min_size: int) -> np.ndarray:

@@ -1,8 +1,9 @@
 """Labelling stage: range-filter each registered scan, open new voxels in the map, let a labeller label them.
 
-A labeller is pluggable (`Labeller` protocol); `make_labeller(name, cfg)` builds one by name. Each lives in
-its own module `pipeline.labellers.<module>` exposing `create(cfg: Config) -> Labeller`, imported only
-when asked for, so a labeller that needs weights costs nothing until it is chosen.
+A labeller is pluggable (`Labeller` protocol); `make_labeller(name, cfg, environment)` builds one by name. Each
+lives in its own module `pipeline.labellers.<module>` exposing `create(cfg, name, environment) -> Labeller`
+(a module may serve several names), imported only when asked for, so a labeller that needs weights costs
+nothing until it is chosen.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 
 from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.types import Frame, Labels
+from aftershock.pipeline.types import Frame, Labels, MapRows
 from aftershock.pipeline.voxel_map import VoxelMap
 
 # name -> module under pipeline.labellers
@@ -40,16 +41,22 @@ class Labeller(Protocol):
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         """Fill `class_ids`, `scores` (and where it has them `normals`, `embeddings`) of the new rows.
-        `frame` is registered (pose, world points) and `frame.keep` marks the points given to the map."""
+        `frame` is registered (pose, world points) and `frame.map_rows` says which points went into the map."""
         ...
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         """Per pair of (neighbouring) voxel rows: True where they should join the same instance."""
         ...
 
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """After instances merged (the end of a run): their voxels may take the class the instance votes for
+        (a labeller without instance votes does nothing)."""
+        ...
 
-def make_labeller(name: str, cfg: Config) -> Labeller:
-    """The labeller called `name`; InputError if unknown, not built, or its weights are missing."""
+
+def make_labeller(name: str, cfg: Config, environment: Environment) -> Labeller:
+    """The labeller called `name` for this environment (indoor or outdoor, decided by the caller); InputError
+    if unknown, not built, or its weights are missing."""
     module_name = LABELLERS.get(name)
     if module_name is None:
         raise InputError(f"unknown labeller {name!r}; choose one of: {', '.join(LABELLERS)}")
@@ -60,10 +67,8 @@ def make_labeller(name: str, cfg: Config) -> Labeller:
         if exc.name == full:
             raise InputError(f"labeller {name!r} is not available in this build") from None
         raise
-    if cfg.label.labeller != name:  # a module serving several names reads which one from the config
-        cfg = cfg.model_copy(update={"label": cfg.label.model_copy(update={"labeller": name})})
     try:
-        labeller = module.create(cfg)
+        labeller = module.create(cfg, name, environment)
     except FileNotFoundError as exc:
         raise InputError(
             f"labeller {name!r}: weights not found ({exc.filename or exc}); see `aftershock train --help`"
@@ -80,27 +85,20 @@ def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float
     scan = frame.scan
     n = len(scan)
     if not frame.registration_ok or frame.world_points is None:
-        frame.keep = np.zeros(n, bool)
-        frame.new_voxel_points = np.zeros(0, np.int64)
-        frame.voxel_points = np.zeros(0, np.int64)
-        frame.kept_rows = np.zeros(0, np.int64)
+        frame.map_rows = MapRows.empty()
         frame.labels = Labels.empty(n)
         frame.counts.update(kept=0, new_voxels=0, map_voxels=len(vmap))
         return frame
-    frame.keep = np.hypot(scan.points[:, 0], scan.points[:, 1]) <= range_m
-    idx = np.flatnonzero(frame.keep)
+    idx = np.flatnonzero(np.hypot(scan.points[:, 0], scan.points[:, 1]) <= range_m)
 
     def pick(a: np.ndarray | None) -> np.ndarray | None:
         return None if a is None else a[idx]
 
-    first_new = len(vmap)
     new_rows, rows = vmap.insert(
         frame.world_points[idx], pick(scan.colors), scan.seq, pick(scan.class_ids), pick(scan.instance_ids)
     )
-    frame.kept_rows = rows
-    touched, first = np.unique(rows, return_index=True)  # rows are numbered in first-point order
-    frame.voxel_points = idx[first]
-    frame.new_voxel_points = frame.voxel_points[touched >= first_new]
+    _, first = np.unique(rows, return_index=True)  # rows are numbered in first-point order
+    frame.map_rows = MapRows(points=idx, rows=rows, new_rows=new_rows, first_points=idx[first])
     if len(new_rows):
         labeller.label(vmap, new_rows, frame)
     labels = Labels.empty(n)

@@ -22,9 +22,9 @@ from typing import Final
 import numpy as np
 from kiss_icp.config import KISSConfig
 from kiss_icp.kiss_icp import KissICP
-from scipy.spatial.transform import Rotation
 
 from aftershock.pipeline.config import Environment, RegisterConfig
+from aftershock.pipeline.geometry import norms, se3_exp, se3_exp_apply, se3_log, sweep_motion, transform
 from aftershock.pipeline.level import estimate_up, leveling_pose
 from aftershock.pipeline.types import Frame, Scan
 
@@ -68,69 +68,7 @@ def settings_for(cfg: RegisterConfig, environment: Environment) -> RegistrationS
     )
 
 
-# ------------------------------------------------------------------------------------------- SE(3) helpers
-
-
-def _hat(w: np.ndarray) -> np.ndarray:
-    """(N, 3) -> (N, 3, 3) skew-symmetric matrices."""
-    z = np.zeros(len(w))
-    return np.stack(
-        [
-            np.stack([z, -w[:, 2], w[:, 1]], -1),
-            np.stack([w[:, 2], z, -w[:, 0]], -1),
-            np.stack([-w[:, 1], w[:, 0], z], -1),
-        ],
-        axis=1,
-    )
-
-
-def se3_log(pose: np.ndarray) -> np.ndarray:
-    """Twist (v, w) of a 4 x 4 rigid transform, translation part first (Sophus' order)."""
-    w = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
-    theta = float(np.linalg.norm(w))
-    wx = _hat(w[None])[0]
-    if theta < 1e-9:
-        v_inv = np.eye(3) - 0.5 * wx
-    else:
-        half = 0.5 * theta
-        v_inv = np.eye(3) - 0.5 * wx + (1.0 - half / np.tan(half)) / theta**2 * (wx @ wx)
-    return np.r_[v_inv @ pose[:3, 3], w]
-
-
-def se3_exp_apply(twist: np.ndarray, scales: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """exp(s_i * twist) applied to point i, for all points at once."""
-    v, w = twist[:3], twist[3:]
-    s = np.asarray(scales, np.float64)
-    ws = s[:, None] * w[None, :]
-    theta = norms(ws)
-    small = theta < 1e-9
-    t = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0, np.sin(t) / t)
-    b = np.where(small, 0.5, (1.0 - np.cos(t)) / t**2)
-    c = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
-    p = np.asarray(points, np.float64)
-    # Rodrigues for R p and V v without building N matrices: w x p and w x (w x p).
-    wp = _cross(ws, p)
-    vs = s[:, None] * v[None, :]
-    wv = _cross(ws, vs)
-    return p + vs + a[:, None] * wp + b[:, None] * (_cross(ws, wp) + wv) + c[:, None] * _cross(ws, wv)
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (N, 3) arrays (np.cross spends most of its time reshaping)."""
-    out = np.empty_like(b)
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
-
-
-def se3_exp(twist: np.ndarray) -> np.ndarray:
-    """4 x 4 rigid transform of a twist (v, w)."""
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_rotvec(twist[3:]).as_matrix()
-    out[:3, 3] = se3_exp_apply(twist, np.ones(1), np.zeros((1, 3)))[0]
-    return out
+# ------------------------------------------------------------------------------------------------ deskew
 
 
 def deskew(points: np.ndarray, times: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -152,22 +90,6 @@ def deskew(points: np.ndarray, times: np.ndarray, delta: np.ndarray) -> np.ndarr
     trans = moved[:, 0]
     rot = (moved[:, 1:] - trans[:, None, :]).transpose(0, 2, 1)  # columns are the rotated unit vectors
     return np.einsum("nij,nj->ni", rot[step], points) + trans[step]
-
-
-def sweep_motion(delta: np.ndarray, fraction: float) -> np.ndarray:
-    """The part `fraction` of a rigid motion (along its screw axis)."""
-    return delta if fraction == 1.0 else se3_exp(fraction * se3_log(delta))
-
-
-def transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Points (N, 3) moved by a 4 x 4 pose. einsum, not `@`: a BLAS call for a 3-wide product spends more
-    time waking threads than computing on a busy machine."""
-    return np.einsum("ij,nj->ni", pose[:3, :3], points) + pose[:3, 3]
-
-
-def norms(v: np.ndarray) -> np.ndarray:
-    """Euclidean norms along the last axis (much faster than np.linalg.norm(..., axis=-1) for 3-vectors)."""
-    return np.sqrt(np.einsum("...i,...i->...", v, v))
 
 
 # ------------------------------------------------------------------------------------------------- stage

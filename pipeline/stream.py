@@ -96,19 +96,19 @@ def resolve_environment(cfg: Config, first: Scan) -> Environment:
     return guess_environment(first) if env is Environment.AUTO else env
 
 
-def choose_labeller(cfg: Config, notice: Callable[[str], None]) -> Labeller:
+def choose_labeller(cfg: Config, environment: Environment, notice: Callable[[str], None]) -> Labeller:
     """The configured labeller; the default MCPNet falls back to the baseline (with a notice) when it is
     not available, a labeller asked for by name, or with a weights file named, does not. With
     `label.oracle` the truth stands in for its classes or embeddings (`eval --oracle`)."""
     name = cfg.label.labeller
     try:
-        labeller = make_labeller(name, cfg)
+        labeller = make_labeller(name, cfg, environment)
     except InputError as exc:
         asked = {"labeller", "weights"} & cfg.label.model_fields_set
         if asked or cfg.label.weights is not None or name == FALLBACK_LABELLER:
             raise
         notice(f"{exc}; using the {FALLBACK_LABELLER} baseline instead")
-        labeller = make_labeller(FALLBACK_LABELLER, cfg)
+        labeller = make_labeller(FALLBACK_LABELLER, cfg, environment)
     if cfg.label.oracle == "none":
         return labeller
     if cfg.label.oracle == "objects" and not labeller.embedding_dim:
@@ -247,9 +247,8 @@ def consolidate(
     under the minimum object size set to "no object" in the map itself. Returns the merges (for the sinks)
     and whether the map changed."""
     merges = clusterer.finish(vmap, seq)
-    vote = getattr(labeller, "vote_instances", None)
-    if merges and vote is not None:
-        vote(vmap, np.array([m.into for m in merges], np.int64))
+    if merges:
+        labeller.vote_instances(vmap, np.array([m.into for m in merges], np.int64))
     ids = vmap.instance_ids
     summary.fragments = len(np.unique(ids[ids > 0]))
     summary.final_merges = sum(len(m.merged) for m in merges)
@@ -341,9 +340,7 @@ def _set_up(
     if cfg.label.oracle != "none" and not first.has_ground_truth:
         raise InputError(f"label.oracle={cfg.label.oracle} needs a log with ground truth", info.source)
     environment = resolve_environment(cfg, first)
-    cfg = cfg.model_copy(deep=True)
-    cfg.label.environment = environment
-    labeller = choose_labeller(cfg, notice)
+    labeller = choose_labeller(cfg, environment, notice)
     info.environment = environment.value
     info.labeller = labeller.name
     run = _Run(
@@ -352,7 +349,7 @@ def _set_up(
         labeller=labeller,
         vmap=VoxelMap.from_config(cfg.map, labeller.embedding_dim),
         registrar=make_registrar(cfg.registration, environment),
-        clusterer=InstanceClusterer.from_config(cfg.cluster, labeller.affinity, labeller.embedding_dim),
+        clusterer=InstanceClusterer(cfg.cluster, labeller.affinity, labeller.embedding_dim),
         t_start=t_start,
     )
     return run, (s for part in (skipped, [first], it) for s in part)

@@ -102,6 +102,26 @@ class InstanceMerge:
     seq: int
 
 
+@dataclass(frozen=True, slots=True)
+class MapRows:
+    """What the labelling stage did to the map with one scan, for the stages and sinks after it: the points it
+    kept (the range filter), the map row of each, the rows the scan opened, and the first kept point of every
+    map voxel the scan fell in (one point per voxel, in row order)."""
+
+    points: np.ndarray  # (K,) int64 indices into the scan of the kept points, ascending
+    rows: np.ndarray  # (K,) the map row of each kept point
+    new_rows: np.ndarray  # rows the scan opened, in first-point order
+    first_points: np.ndarray  # indices into the scan of the first kept point of each voxel the scan fell in
+
+    def __post_init__(self) -> None:
+        _check_len("rows", self.rows, len(self.points))
+
+    @staticmethod
+    def empty() -> MapRows:
+        none = np.zeros(0, np.int64)
+        return MapRows(none, none, none, none)
+
+
 @dataclass(slots=True)
 class Frame:
     """A scan on its way through the stages; each stage fills in its part and records how long it took."""
@@ -114,10 +134,7 @@ class Frame:
     stamp_pose: np.ndarray | None = None
     registration_ok: bool = True
     registration_note: str = ""
-    keep: np.ndarray | None = None  # (N,) bool, points kept by the range filter for labelling
-    new_voxel_points: np.ndarray | None = None  # indices (into scan points) that opened new map voxels
-    voxel_points: np.ndarray | None = None  # indices of the first kept point in each map voxel the scan fell in
-    kept_rows: np.ndarray | None = None  # the map row of each kept point (in the order of np.flatnonzero(keep))
+    map_rows: MapRows | None = None  # what the labelling stage did to the map (None before it)
     labels: Labels | None = None  # for the points of `scan` (unlabelled where not kept)
     merges: list[InstanceMerge] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)

@@ -14,8 +14,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from aftershock.pipeline.classes import UNLABELLED, SemanticClass
+from aftershock.pipeline.geometry import voxel_downsample
 from aftershock.pipeline.pointcloud2 import decode_pointcloud2, valid_mask
-from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, Labels, Scan
+from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, Labels, MapRows, Scan
 
 VELODYNE = "velodyne_vlp16_indoor.mcap"
 
@@ -77,7 +78,11 @@ def make_frame(scan: Scan, *, labelled_range_m: float = 6.0) -> Frame:
     rng = np.random.default_rng(scan.seq)
     emb = rng.normal(size=(len(scan), 8)).astype(np.float32) + cls[:, None].astype(np.float32)
     labels.embeddings = emb / np.linalg.norm(emb, axis=1, keepdims=True)
-    frame = Frame(scan=scan, pose=pose, world_points=world, keep=keep, labels=labels)
+    # What the labelling stage hands over, for a map of this scan alone (one row per 10 cm voxel of it).
+    kept = np.flatnonzero(keep)
+    first, rows = voxel_downsample(world[kept], 0.1)
+    map_rows = MapRows(points=kept, rows=rows, new_rows=np.arange(len(first)), first_points=kept[first])
+    frame = Frame(scan=scan, pose=pose, world_points=world, map_rows=map_rows, labels=labels)
     frame.timings_ms = {"register": 10.0 + scan.seq, "label": 20.0 + scan.seq, "cluster": 5.0}
     frame.counts = {"kept": int(keep.sum()), "new": int(keep.sum()) // 2}
     if scan.seq == 1:
@@ -103,8 +108,8 @@ def map_of(frames_: list[Frame]) -> LabelledCloud:
     """The accumulated labelled map of the labelled points of some frames."""
     pts, cls, inst = [], [], []
     for f in frames_:
-        assert f.labels is not None and f.world_points is not None and f.keep is not None
-        pts.append(f.world_points[f.keep])
-        cls.append(f.labels.class_ids[f.keep])
-        inst.append(f.labels.instance_ids[f.keep])
+        assert f.labels is not None and f.world_points is not None and f.map_rows is not None
+        pts.append(f.world_points[f.map_rows.points])
+        cls.append(f.labels.class_ids[f.map_rows.points])
+        inst.append(f.labels.instance_ids[f.map_rows.points])
     return LabelledCloud(np.concatenate(pts), class_ids=np.concatenate(cls), instance_ids=np.concatenate(inst))

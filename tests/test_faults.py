@@ -555,12 +555,12 @@ def test_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
 ) -> None:
     """When Rerun's file writer dies without saying so, every flush times out: the sink gives up once the file
     stops growing and marks the process as stuck (the command line then ends it after the error line)."""
-    from aftershock.sinks import rerun_sink
+    from aftershock.sinks import rerun_output, rerun_sink
 
     out = tmp_path / "x.rrd"
     sink = rerun_sink.RerunSink(out, False, None, load_config().rerun)
     sink.begin(RunInfo(str(out), "mcap"))
-    monkeypatch.setattr(rerun_sink, "FLUSH_STALL_S", 0.5)
+    monkeypatch.setattr(rerun_output, "FLUSH_STALL_S", 0.5)
 
     def timed_out(timeout_sec: float = 0.0) -> None:
         time.sleep(min(timeout_sec, 0.05))

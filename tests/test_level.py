@@ -15,8 +15,9 @@ from scipy.spatial.transform import Rotation
 
 from aftershock import sources
 from aftershock.pipeline.config import Environment, RegisterConfig
+from aftershock.pipeline.geometry import transform
 from aftershock.pipeline.level import estimate_up, leveling_pose
-from aftershock.pipeline.register import Registrar, transform
+from aftershock.pipeline.register import Registrar
 from aftershock.pipeline.types import Frame, Scan
 
 UP = np.array([0.0, 0.0, 1.0])

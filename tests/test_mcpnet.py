@@ -43,8 +43,9 @@ from aftershock.models.mcpnet_train import (
 )
 from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.classes import NUM_CLASSES, UNLABELLED
-from aftershock.pipeline.config import Config
+from aftershock.pipeline.config import ClusterConfig, Config, Environment
 from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.label import Labeller, make_labeller
 from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller, distinct_pairs
 from aftershock.pipeline.stream import run_stream
 from aftershock.pipeline.types import LabelledCloud, RunInfo
@@ -89,7 +90,7 @@ def test_labeller_predictions_do_not_depend_on_which_rows_are_asked_with() -> No
     vmap = VoxelMap(0.1, 50)
     pts = rng.uniform(-1, 1, (800, 3))
     vmap.insert(pts, rng.integers(0, 255, (800, 3)).astype(np.uint8))
-    labeller = MCPNetLabeller(Config())
+    labeller = MCPNetLabeller(Config(), ClusterConfig().beta_indoor)
     origin = np.zeros(3)
     rows = np.arange(len(vmap))
     cls_all, _score_all, emb_all = labeller.predict(vmap, rows, origin, -1.0, True)
@@ -97,6 +98,20 @@ def test_labeller_predictions_do_not_depend_on_which_rows_are_asked_with() -> No
     cls_few, _score_few, emb_few = labeller.predict(vmap, pick, origin, -1.0, True)
     np.testing.assert_array_equal(cls_few, cls_all[pick])
     np.testing.assert_allclose(emb_few, emb_all[pick], atol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["mcpnet", "mcpnet-nocontext", "pointnet", "region-growing"])
+def test_every_labeller_is_built_for_the_environment_it_is_given(name: str) -> None:
+    """The environment and the name are arguments (not fields of a copied config): the labellers with
+    embeddings link voxels at the cluster section's β for that environment; every one can vote instances."""
+    cfg = Config()
+    for environment in (Environment.INDOOR, Environment.OUTDOOR):
+        labeller = make_labeller(name, cfg, environment)
+        assert isinstance(labeller, Labeller) and labeller.name == name
+        if labeller.embedding_dim:
+            assert labeller.beta == cfg.cluster.link_beta(environment)
+    assert cfg.cluster.link_beta(Environment.OUTDOOR) == cfg.cluster.beta_outdoor != cfg.cluster.beta_indoor
+    assert cfg.label.environment is Environment.AUTO and cfg.label.labeller == "mcpnet"  # left as it was
 
 
 @pytest.mark.parametrize("color", [True, False])
@@ -107,7 +122,7 @@ def test_distinct_pairs_pool_what_the_draws_pool(color: bool) -> None:
     vmap = VoxelMap(0.1, 50)
     pts = np.r_[rng.uniform(-1, 1, (1500, 3)), rng.uniform(5, 5.4, (30, 3))]  # dense and sparse parts
     vmap.insert(pts, rng.integers(0, 255, (len(pts), 3)).astype(np.uint8))
-    labeller = MCPNetLabeller(Config())
+    labeller = MCPNetLabeller(Config(), ClusterConfig().beta_indoor)
     rows = np.arange(len(vmap))
     origin = np.zeros(3)
     cls, score, emb = labeller.predict(vmap, rows, origin, -1.0, color)
@@ -338,7 +353,7 @@ def test_a_short_simulated_run_labels_points(sim_scans: list, color: bool) -> No
 def test_embed_cloud_gives_unit_embeddings_per_point() -> None:
     rng = np.random.default_rng(1)
     pts = rng.uniform(0, 3, (2000, 3))
-    labeller = MCPNetLabeller(Config())
+    labeller = MCPNetLabeller(Config(), ClusterConfig().beta_indoor)
     emb = labeller.embed_cloud(LabelledCloud(pts, rng.integers(0, 255, (2000, 3)).astype(np.uint8)))
     assert emb.shape == (2000, 50)
     np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-4)

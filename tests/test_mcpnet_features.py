@@ -158,7 +158,7 @@ def test_logs_without_color_get_the_color_free_network(tmp_path: Path) -> None:
     only; the labeller runs it on logs without colour, and a weights file named alone serves both kinds of log."""
     from aftershock.models.mcpnet import default_weights
     from aftershock.models.transfer_split import HELDOUT_GENERATOR, TRAIN_SEEDS
-    from aftershock.pipeline.config import load_config
+    from aftershock.pipeline.config import ClusterConfig, load_config
     from aftershock.pipeline.labellers.mcpnet import NO_COLOR, MCPNetLabeller
 
     path = default_weights(NO_COLOR)
@@ -167,13 +167,13 @@ def test_logs_without_color_get_the_color_free_network(tmp_path: Path) -> None:
     assert cfg.features == TRANSFER_FEATURES and cfg.coarse_points > 0
     assert set(figures["train_seeds"]) <= set(TRAIN_SEEDS) and HELDOUT_GENERATOR not in figures["generators"]
     assert not any(HELDOUT_GENERATOR in u for u in figures["missions"])
-    shipped = MCPNetLabeller(load_config(None, []))
+    shipped = MCPNetLabeller(load_config(None, []), ClusterConfig().beta_indoor)
     assert shipped.mono_weights == path and shipped.mono_net.features == TRANSFER_FEATURES
     assert shipped.net.features == POINT_FEATURES  # logs with colour: the families' network
-    one = MCPNetLabeller(load_config(None, [f"label.weights={path}"]), weights=path)
+    one = MCPNetLabeller(load_config(None, [f"label.weights={path}"]), ClusterConfig().beta_indoor, weights=path)
     assert one.mono_weights == path and one.net.features == TRANSFER_FEATURES
     other = tmp_path / "narrow.pt"
     narrow = NetConfig(embed_dim=8)
     save_weights(other, MCPNet(narrow), narrow, {})
     with pytest.raises(InputError, match=r"narrow\.pt: embeds in 8 dimensions"):
-        MCPNetLabeller(load_config(None, []), weights_no_color=other)
+        MCPNetLabeller(load_config(None, []), ClusterConfig().beta_indoor, weights_no_color=other)

@@ -12,16 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from aftershock import sources
 from aftershock.pipeline.config import Environment, RegisterConfig
-from aftershock.pipeline.register import (
-    Registrar,
-    deskew,
-    guess_environment,
-    register_stage,
-    se3_exp,
-    se3_exp_apply,
-    se3_log,
-    transform,
-)
+from aftershock.pipeline.geometry import se3_exp, se3_exp_apply, se3_log, transform
+from aftershock.pipeline.register import Registrar, deskew, guess_environment, register_stage
 from aftershock.pipeline.trajectory import trajectory_error
 from aftershock.pipeline.types import Frame, Scan
 

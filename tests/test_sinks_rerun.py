@@ -104,7 +104,7 @@ def test_recording_holds_what_went_in(recorded: tuple[Path, list]) -> None:
     # one point per 10 cm voxel of the points kept for labelling, with that point's class and instance
     want_cls, want_inst, want_pts = [], [], []
     for f in done:
-        kept = np.flatnonzero(f.keep)
+        kept = f.map_rows.points
         first, _ = voxel_downsample(f.world_points[kept], 0.1)
         want_cls.append(f.labels.class_ids[kept[first]])
         want_inst.append(f.labels.instance_ids[kept[first]])
@@ -115,11 +115,13 @@ def test_recording_holds_what_went_in(recorded: tuple[Path, list]) -> None:
     assert np.array_equal(rec.values(L.LABELS, "instance_id"), np.concatenate(want_inst))
     pts = np.concatenate([np.asarray(r) for r in rec.rows(L.LABELS, "Points3D:positions")])
     assert np.allclose(pts, np.concatenate(want_pts), atol=1e-5)
-    assert sum(len(c) for c in want_cls) < sum(int(f.keep.sum()) for f in done) / 2  # far fewer than kept
+    assert sum(len(c) for c in want_cls) < sum(len(f.map_rows.points) for f in done) / 2  # far fewer than kept
     positions = np.asarray(rec.rows(L.ROBOT, "Transform3D:translation"))
     assert np.allclose(positions.reshape(len(done), 3), [f.pose[:3, 3] for f in done])
     map_classes = np.concatenate([rec.values(e, "Points3D:class_ids") for e in rec.under(L.MAP)])
-    assert set(np.unique(map_classes)) <= set(np.unique(np.concatenate([f.labels.class_ids[f.keep] for f in done])))
+    assert set(np.unique(map_classes)) <= set(
+        np.unique(np.concatenate([f.labels.class_ids[f.map_rows.points] for f in done]))
+    )
     assert rec.texts("log/summary")[0].startswith(f"{len(done)} scans")
     assert rrd_verify(path).returncode == 0
     assert len(RrdReader(path).store()) > 0  # the footer was written on close
@@ -154,9 +156,9 @@ def test_recordings_are_compact(recorded: tuple[Path, list], velodyne: Path, tmp
     for entity in DEBUG_LAYERS:
         assert rec.times(entity, "Points3D:positions", L.SCAN_TIMELINE).tolist() == [f.seq for f in done], entity
     labelled = rec.values(L.LABELLED, "Points3D:class_ids")
-    assert np.array_equal(labelled, np.concatenate([f.labels.class_ids[f.keep] for f in done]))
+    assert np.array_equal(labelled, np.concatenate([f.labels.class_ids[f.map_rows.points] for f in done]))
     inst = rec.values(L.INSTANCES, "instance_id")
-    assert np.array_equal(inst, np.concatenate([f.labels.instance_ids[f.keep] for f in done]))
+    assert np.array_equal(inst, np.concatenate([f.labels.instance_ids[f.map_rows.points] for f in done]))
     assert debug.stat().st_size > 5 * path.stat().st_size
 
 

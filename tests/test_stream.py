@@ -51,7 +51,8 @@ class CallLog(Sink):
     def stage(self, frame: Frame, stage: Stage) -> None:
         self.threads.add(threading.current_thread().name)
         labels = frame.labels
-        got = (frame.scan.points, frame.pose, frame.world_points, frame.keep)
+        kept = frame.map_rows.points if frame.map_rows is not None else None
+        got = (frame.scan.points, frame.pose, frame.world_points, kept)
         if labels is not None:
             got += (labels.class_ids, labels.instance_ids, labels.scores, labels.embeddings)
         self.calls.append((stage.value, frame.seq, _digest(*got)))

@@ -8,11 +8,9 @@ from dataclasses import dataclass, field, replace
 from typing import Final
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from aftershock.pipeline.geometry import radius_pairs
+from aftershock.pipeline.geometry import graph_components, radius_pairs, relabel_by_size
 from aftershock.pipeline.types import Crack
 
 _EPS: Final = 1e-12
@@ -210,15 +208,7 @@ def components(points: np.ndarray, link_m: float, min_points: int) -> np.ndarray
     n = len(points)
     if n == 0:
         return np.zeros(0, np.int64)
-    pairs = radius_pairs(points, link_m)
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
-    _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
-    order = np.argsort(-counts, kind="stable")
-    new_id = np.zeros(len(counts), np.int64)
-    big = counts[order] >= min_points
-    new_id[order[big]] = np.arange(1, big.sum() + 1)
-    return new_id[inverse.reshape(-1)]
+    return relabel_by_size(graph_components(n, radius_pairs(points, link_m)), min_points)
 
 
 def measure_cracks(

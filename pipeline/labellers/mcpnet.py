@@ -58,6 +58,7 @@ class MCPNetLabeller:
     def __init__(
         self,
         cfg: Config,
+        link_beta: float,
         weights: str | Path | None = None,
         kind: str = "mcpnet",
         weights_no_color: str | Path | None = None,
@@ -82,8 +83,7 @@ class MCPNetLabeller:
         self.embedding_dim = self.net.embed_dim
         self.cell_m = cfg.map.context_cell_m
         self.num = cfg.map.context_points
-        outdoor = cfg.label.environment is Environment.OUTDOOR
-        self.beta = cfg.cluster.beta_outdoor if outdoor else cfg.cluster.beta_indoor
+        self.beta = link_beta  # embeddings this similar link two voxels (the cluster section's β for the site)
         self.relabel = cfg.label.relabel_old_voxels
         self.vote = cfg.label.instance_vote
         self.raw_class = np.zeros(0, np.int64)  # the network's own class per map row, before instance votes
@@ -156,9 +156,8 @@ class MCPNetLabeller:
         floor_z = floor_height(world)
         use_color = frame.scan.colors is not None
         rows = np.asarray(new_rows, dtype=np.int64)
-        if self.relabel and frame.keep is not None and len(vmap):
-            seen = vmap.lookup_points(world[frame.keep])
-            seen = np.unique(seen[seen >= 0])
+        if self.relabel and frame.map_rows is not None and len(vmap):
+            seen = np.unique(frame.map_rows.rows)
             old = seen[vmap.first_seq[seen] < frame.seq]
             budget = RELABEL_PER_NEW * len(rows)  # bounded: relabelling must not dominate the scan time
             rows_old = self.rng.choice(old, budget, replace=False) if len(old) > budget else old
@@ -177,9 +176,8 @@ class MCPNetLabeller:
             self.raw_class[rows_old[better]] = classes[n:][better]
             self.raw_score[rows_old[better]] = scores[n:][better]
             vmap.class_ids[rows_old[better]] = classes[n:][better]
-        if self.vote and frame.keep is not None:
-            seen = frame.kept_rows if frame.kept_rows is not None else vmap.lookup_points(world[frame.keep])
-            self.vote_instances(vmap, vmap.instance_ids[seen[seen >= 0]])
+        if self.vote and frame.map_rows is not None:
+            self.vote_instances(vmap, vmap.instance_ids[frame.map_rows.rows])
 
     def _grow(self, n: int) -> None:
         if n > len(self.raw_class):
@@ -228,8 +226,9 @@ class MCPNetLabeller:
         return emb
 
 
-def create(cfg: Config) -> MCPNetLabeller:
-    """MCPNet, or the same network without context pooling when `label.labeller` is "mcpnet-nocontext"."""
-    if cfg.label.labeller == NO_CONTEXT:
-        return MCPNetLabeller(cfg, kind=NO_CONTEXT)
-    return MCPNetLabeller(cfg, weights=cfg.label.weights, weights_no_color=cfg.label.weights_no_color)
+def create(cfg: Config, name: str = NAME, environment: Environment = Environment.INDOOR) -> MCPNetLabeller:
+    """MCPNet, or the same network without context pooling for the name "mcpnet-nocontext"."""
+    beta = cfg.cluster.link_beta(environment)
+    if name == NO_CONTEXT:
+        return MCPNetLabeller(cfg, beta, kind=NO_CONTEXT)
+    return MCPNetLabeller(cfg, beta, weights=cfg.label.weights, weights_no_color=cfg.label.weights_no_color)

@@ -46,10 +46,8 @@ class TruthStandIn:
 
     def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
         """The inner labeller's vote (the end of a run), and the truth put back over it."""
-        vote = getattr(self.inner, "vote_instances", None)
-        if vote is not None:
-            vote(vmap, instances)
-            self._overwrite(vmap, np.flatnonzero(np.isin(vmap.instance_ids, instances)))
+        self.inner.vote_instances(vmap, instances)
+        self._overwrite(vmap, np.flatnonzero(np.isin(vmap.instance_ids, instances)))
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         return self.inner.affinity(vmap, rows_a, rows_b)

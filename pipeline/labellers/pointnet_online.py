@@ -32,7 +32,7 @@ HISTORY: Final = 200  # scans remembered for the expansions
 class PointNetLabeller:
     """The `Labeller` of `pipeline.label` backed by the PointNet baseline."""
 
-    def __init__(self, cfg: Config, name: str = "pointnet", weights: str | Path | None = None) -> None:
+    def __init__(self, link_beta: float, name: str = "pointnet", weights: str | Path | None = None) -> None:
         if name not in MODES:
             raise ValueError(f"unknown PointNet mode {name!r}")
         self.name = name
@@ -41,8 +41,7 @@ class PointNetLabeller:
         # Batches of a few dozen voxels: a second intra-op thread only waits (10-20x slower on a busy machine).
         torch.set_num_threads(1)
         self.embedding_dim = self.net.embed_dim
-        outdoor = cfg.label.environment is Environment.OUTDOOR
-        self.beta = cfg.cluster.beta_outdoor if outdoor else cfg.cluster.beta_indoor
+        self.beta = link_beta  # embeddings this similar link two voxels
         self.history: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=HISTORY)
 
     def cloud_rows(self, rows: np.ndarray, stamp_s: float, origin: np.ndarray) -> np.ndarray:
@@ -61,9 +60,11 @@ class PointNetLabeller:
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         origin = frame.pose[:3, 3] if frame.pose is not None else np.zeros(3)
         world = frame.world_points if frame.world_points is not None else np.zeros((0, 3))
-        keep = frame.keep if frame.keep is not None else np.ones(len(world), bool)
-        rows = vmap.lookup_points(world[keep])
-        rows = np.unique(rows[rows >= 0]).astype(np.int64)
+        if frame.map_rows is not None:
+            rows = np.unique(frame.map_rows.rows).astype(np.int64)
+        else:
+            rows = vmap.lookup_points(world)
+            rows = np.unique(rows[rows >= 0]).astype(np.int64)
         cloud = self.cloud_rows(rows, frame.scan.stamp_s, origin)
         colors = vmap.colors[cloud] if frame.scan.colors is not None else None
         feats = point_features(vmap.positions[cloud], colors, origin, floor_height(world))
@@ -81,7 +82,9 @@ class PointNetLabeller:
         ea, eb = vmap.embeddings[rows_a], vmap.embeddings[rows_b]
         return np.einsum("ij,ij->i", ea, eb) > self.beta
 
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """PointNet keeps each voxel's own class (no instance votes)."""
 
-def create(cfg: Config) -> PointNetLabeller:
-    name = cfg.label.labeller if cfg.label.labeller in MODES else "pointnet"
-    return PointNetLabeller(cfg, name)
+
+def create(cfg: Config, name: str = "pointnet", environment: Environment = Environment.INDOOR) -> PointNetLabeller:
+    return PointNetLabeller(cfg.cluster.link_beta(environment), name if name in MODES else "pointnet")

@@ -22,9 +22,8 @@ from typing import Final
 import numpy as np
 
 from aftershock.pipeline.classes import SemanticClass
-from aftershock.pipeline.config import Config
-from aftershock.pipeline.geometry import group_pca
-from aftershock.pipeline.register import norms
+from aftershock.pipeline.config import Config, Environment
+from aftershock.pipeline.geometry import group_pca, norms
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import VoxelMap
 
@@ -51,10 +50,10 @@ class RegionGrowingLabeller:
     name = NAME
     embedding_dim = 0
 
-    def __init__(self, cfg: Config) -> None:
-        self.min_cos = float(np.cos(np.deg2rad(cfg.cluster.normal_angle_deg)))
-        self.max_color = float(cfg.cluster.color_distance)
-        self.radius_m = (NORMAL_RADIUS_VOXELS + 0.5) * cfg.map.voxel_size_m
+    def __init__(self, normal_angle_deg: float, color_distance: float, voxel_size_m: float) -> None:
+        self.min_cos = float(np.cos(np.deg2rad(normal_angle_deg)))
+        self.max_color = float(color_distance)
+        self.radius_m = (NORMAL_RADIUS_VOXELS + 0.5) * voxel_size_m
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         nb = vmap.neighbour_rows(new_rows, NORMAL_RADIUS_VOXELS)
@@ -77,6 +76,9 @@ class RegionGrowingLabeller:
         cb = vmap.colors[rows_b].astype(np.float32) / 255.0
         return ok & (norms(ca - cb) < self.max_color)
 
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """The rule classes stay per voxel (no instance votes)."""
 
-def create(cfg: Config) -> RegionGrowingLabeller:
-    return RegionGrowingLabeller(cfg)
+
+def create(cfg: Config, name: str = NAME, environment: Environment = Environment.INDOOR) -> RegionGrowingLabeller:
+    return RegionGrowingLabeller(cfg.cluster.normal_angle_deg, cfg.cluster.color_distance, cfg.map.voxel_size_m)

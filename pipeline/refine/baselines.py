@@ -12,11 +12,14 @@ from enum import StrEnum
 from typing import Final
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from aftershock.pipeline.config import LRGNetConfig
-from aftershock.pipeline.geometry import attach_small_segments, smoothness_region_growing, threshold_region_growing
+from aftershock.pipeline.geometry import (
+    attach_small_segments,
+    graph_components,
+    smoothness_region_growing,
+    threshold_region_growing,
+)
 from aftershock.pipeline.refine.features import NORMAL, VoxelCloud
 from aftershock.pipeline.types import LabelledCloud
 
@@ -46,9 +49,7 @@ def similarity_components(vc: VoxelCloud, vectors: np.ndarray, min_similarity: f
     e = _edges(vc)
     ok = np.einsum("ij,ij->i", v[e[:, 0]], v[e[:, 1]]) >= min_similarity
     e = e[ok]
-    n = len(vc)
-    graph = coo_matrix((np.ones(len(e), np.int8), (e[:, 0], e[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1] + 1
+    return graph_components(len(vc), e) + 1
 
 
 def threshold_growing(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:
@@ -83,12 +84,12 @@ def fpfh_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> 
 
 def mcpnet_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:
     """Components over MCPNet's embeddings of the voxel points (the clustering stage's rule, β indoor)."""
-    from aftershock.pipeline.config import Config
+    from aftershock.pipeline.config import Config, Environment
     from aftershock.pipeline.labellers.mcpnet import create
 
     vox = cloud.select(vc.first_point)
     vox.points = vc.points
-    embeddings = create(Config()).embed_cloud(vox)
+    embeddings = create(Config(), environment=Environment.INDOOR).embed_cloud(vox)
     return similarity_components(vc, np.asarray(embeddings, np.float64), cfg.mcpnet_similarity)
 
 

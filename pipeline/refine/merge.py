@@ -18,10 +18,8 @@ from __future__ import annotations
 from typing import Final
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
-from aftershock.pipeline.geometry import label_pca
+from aftershock.pipeline.geometry import graph_components, label_pca
 from aftershock.pipeline.refine.features import NORMAL, VoxelCloud
 
 MAX_FLATNESS: Final = 0.01  # smallest eigenvalue / sum over a whole segment: a plane, not a box or a chair
@@ -34,11 +32,6 @@ def _touching_pairs(vc: VoxelCloud) -> np.ndarray:
     return e[e[:, 1] >= 0]
 
 
-def _components(n: int, pairs: np.ndarray) -> np.ndarray:
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
-
-
 def split_creases(vc: VoxelCloud, labels: np.ndarray, max_angle_deg: float, min_voxels: int) -> np.ndarray:
     """Voxel labels (M,) with every flat smooth part of at least `min_voxels` voxels but each segment's largest
     given a new id (after the existing ones); smooth parts join touching voxels of one segment whose normals
@@ -47,7 +40,7 @@ def split_creases(vc: VoxelCloud, labels: np.ndarray, max_angle_deg: float, min_
     normals = vc.features[:, NORMAL]
     same = labels[e[:, 0]] == labels[e[:, 1]]
     same &= np.abs(np.einsum("ij,ij->i", normals[e[:, 0]], normals[e[:, 1]])) >= np.cos(np.radians(max_angle_deg))
-    part = _components(len(vc), e[same])
+    part = graph_components(len(vc), e[same])
     _, _, shares, size = label_pca(vc.points, part)
     flatness = shares[:, 0]  # smallest eigenvalue over the sum
     big = np.flatnonzero((size >= min_voxels) & (flatness < MAX_FLATNESS))
@@ -88,7 +81,7 @@ def merge_coplanar(vc: VoxelCloud, labels: np.ndarray, max_angle_deg: float, max
     if not ok.any():
         return labels
     n = int(labels.max()) + 1
-    component = _components(n, np.stack([i[ok], j[ok]], axis=1))
+    component = graph_components(n, np.stack([i[ok], j[ok]], axis=1))
     lowest = np.full(component.max() + 1, n, np.int64)
     np.minimum.at(lowest, component, np.arange(n))
     return lowest[component][labels]

@@ -55,9 +55,9 @@ pytestmark = pytest.mark.timeout(3600)
 _CPU_TIMERS: Final = textwrap.dedent(
     """
     import time
-    import aftershock.pipeline.cluster, aftershock.pipeline.label, aftershock.pipeline.register
+    import aftershock.pipeline.cluster.stage, aftershock.pipeline.label, aftershock.pipeline.register
     import aftershock.pipeline.stream
-    for _m in (aftershock.pipeline.cluster, aftershock.pipeline.label, aftershock.pipeline.register,
+    for _m in (aftershock.pipeline.cluster.stage, aftershock.pipeline.label, aftershock.pipeline.register,
                aftershock.pipeline.stream):
         _m.perf_counter = time.thread_time
     """
