@@ -14,7 +14,7 @@ stream goes on; the labelling stage leaves such frames out of the map.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable
 from dataclasses import dataclass
 from time import perf_counter
 from typing import Final
@@ -240,7 +240,7 @@ def make_registrar(cfg: RegisterConfig, environment: Environment) -> Registrar |
     return Registrar(cfg, environment)
 
 
-def register_stage(frames: Iterable[Frame], registrar: Registrar | TruthPoses) -> Iterator[Frame]:
+def register_stage(frames: Iterable[Frame], registrar: Registrar | TruthPoses) -> Generator[Frame, None, None]:
     for frame in frames:
         t0 = perf_counter()
         registrar.register(frame)

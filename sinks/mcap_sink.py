@@ -24,10 +24,9 @@ from aftershock.pipeline.classes import UNLABELLED, class_colors
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.pointcloud2 import (
-    POINTCLOUD2_MSGDEF,
-    POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
     pose_stamped_message,
+    register_cloud_and_pose,
     serialize_pointcloud2,
     serialize_pose_stamped,
 )
@@ -140,10 +139,7 @@ class McapSink(Sink):
             raise OutputError(f"cannot write: {exc.strerror}", self.path) from None
         writer = Writer(self._file, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library="aftershock")
-        cloud_schema = writer.register_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSGDEF.encode())
-        pose_schema = writer.register_schema("geometry_msgs/msg/PoseStamped", "ros2msg", POSE_STAMPED_MSGDEF.encode())
-        self._points = writer.register_channel(POINTS_TOPIC, "cdr", cloud_schema)
-        self._pose = writer.register_channel(POSE_TOPIC, "cdr", pose_schema)
+        self._points, self._pose = register_cloud_and_pose(writer, POINTS_TOPIC, POSE_TOPIC)
         self._writer = writer
         return writer
 

@@ -18,6 +18,7 @@ from typing import IO, Any, Final
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
+from mcap.decoder import DecoderFactory as McapDecoderFactory
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, Message, Schema
@@ -65,6 +66,7 @@ def _damage_errors() -> tuple[type[BaseException], ...]:
 
 
 DAMAGE_ERRORS: Final[tuple[type[BaseException], ...]] = _damage_errors()
+CHUNK_ERRORS: Final[tuple[type[BaseException], ...]] = (CRCValidationError, *DAMAGE_ERRORS)
 
 
 def damage_reason(exc: BaseException, where: int, size: int | None = None) -> str:
@@ -232,15 +234,22 @@ class _Decoders:
             raise InputError(f"topic {channel.topic} has no schema, its messages cannot be decoded")
         fn = self._cache.get(schema.id)
         if fn is None:
+            factory: McapDecoderFactory
             if schema.encoding == "ros2msg":
-                from mcap_ros2.decoder import DecoderFactory
+                from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
+
+                factory = Ros2Decoders()
             elif schema.encoding == "ros1msg":
-                from mcap_ros1.decoder import DecoderFactory  # type: ignore[no-redef]
+                from mcap_ros1.decoder import DecoderFactory as Ros1Decoders
+
+                factory = Ros1Decoders()
             elif schema.encoding == "protobuf":
-                from mcap_protobuf.decoder import DecoderFactory  # type: ignore[no-redef]
+                from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
+
+                factory = ProtobufDecoders()
             else:
                 raise InputError(f"topic {channel.topic}: unsupported schema encoding {schema.encoding!r}")
-            decoder = DecoderFactory().decoder_for(channel.message_encoding, schema)
+            decoder = factory.decoder_for(channel.message_encoding, schema)
             if decoder is None:
                 raise InputError(
                     f"topic {channel.topic}: no decoder for {channel.message_encoding!r} messages of {schema.name}"
@@ -274,7 +283,7 @@ def _chunk_records(chunk: Chunk, where: int) -> list[Any]:
     """The records of a chunk, its CRC checked (a writer that left it 0 chose not to have one)."""
     try:
         return breakup_chunk(chunk, validate_crc=True)
-    except (CRCValidationError, *DAMAGE_ERRORS) as exc:
+    except CHUNK_ERRORS as exc:
         raise _BadChunk(where, chunk.message_start_time, exc) from None
 
 

@@ -70,9 +70,9 @@ def refine(
         methods["lrgnet"]["seconds"] = report["seconds"]
         if baselines is None or baselines:
             vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
-            for name in available():
-                b = baseline_cloud(cloud, name, cfg, vc)
-                methods[name.value] = {**scores(cloud.instance_ids, b.instance_ids), "seconds": b.seconds}
+            for baseline in available():
+                b = baseline_cloud(cloud, baseline, cfg, vc)
+                methods[baseline.value] = {**scores(cloud.instance_ids, b.instance_ids), "seconds": b.seconds}
         report["methods"] = methods
     if out is not None:
         refined = cloud.select(np.arange(len(cloud)))
