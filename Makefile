@@ -22,8 +22,10 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/aftershock run --save out/demo.rrd --export out/demo --force
 
+# mypy (below) takes about a minute of one core from a fresh clone, seconds with its cache in .mypy_cache.
 test: setup
 	$(BIN)/ruff check .
+	$(MYPY)
 	$(BIN)/pytest -q
 
 # Faults and hostile input on their own (also part of `make test`): full disks through a small tmpfs (needs root,
