@@ -71,7 +71,7 @@ bench-objects: setup
 	$(BIN)/pytest -q -m slow -s tests/bench/bench_objects.py
 
 bench-cracks: setup
-	$(BIN)/pytest -q -m slow -s tests/bench/bench_cracks.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_cracks_ridge.py tests/bench/bench_cracks.py
 
 bench-lrgnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench/bench_lrgnet.py

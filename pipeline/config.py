@@ -235,7 +235,7 @@ LRGNET_MODE_DEFAULTS: Final[dict[bool, dict[str, float]]] = {
 class CrackConfig(_Section):
     resolution_m: Positive | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
     features: str = "shade+crackembed"  # best balance of real elements and unseen simulated ones (bench_cracks)
-    detector: str = "isolation-forest"
+    detector: str = "isolation-forest"  # "ridge" (issue 30) did not beat it left out on the real elements (round C)
     neighbourhood_m: Positive = 0.01
     shade_cell_m: NonNegative = (
         0.0  # shade: darkness against the mean of the 3 x 3 x 3 block of these voxels (0 = median)
@@ -289,6 +289,21 @@ class CrackConfig(_Section):
     max_spacing_m: Positive = 0.02  # coarser clouds are refused as too sparse to measure cracks
     fit_points: Count = 20000  # detectors are fitted on at most this many points (seeded sample), applied to all
     weights: str | None = None  # CrackEmbed weights; None = the shipped ones
+    # detector "ridge" (damage/ridge.py): thin dark ridges on each face's orthoimages against the face's background;
+    # chosen in bench_cracks_ridge (round C: best on the four real elements; ridge_high calibrated on simulated intact
+    # elements only); docs/benchmarks/cracks.md
+    ridge_scales_m: tuple[float, ...] = (0.004, 0.008, 0.016, 0.032, 0.064)
+    ridge_channels: tuple[str, ...] = ("grey",)
+    ridge_high: Positive = 8.0  # seed score in robust sigmas of the face's own line contrast
+    ridge_low_ratio: Fraction = 0.5
+    ridge_min_length_m: NonNegative = 0.1
+    ridge_min_elongation: NonNegative = 4.0
+    ridge_line_ratio: Fraction = 0.5  # |smaller| / larger Hessian eigenvalue of a line, at most
+    ridge_max_chroma: NonNegative = 4.5  # a region this far from the face's hue (% chromaticity) is paint; 0 = off
+    # thinner straight axis-aligned strips are joints/marks (0 = off: off, since columns crack straight along them)
+    ridge_straight_width_m: NonNegative = 0.0
+    ridge_rim: bool = True  # at a face's rim (one side off the face) the other side alone is the reference
+    ridge_member_z: NonNegative = 1.0  # a region's crack points: darker than around by this many robust sigmas
     element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...
     element_radius_m: Positive = 0.1  # ... joining neighbours within this distance ...
     element_angle_deg: Angle = 20.0  # ... whose normals differ by less than this ...

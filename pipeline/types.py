@@ -197,6 +197,7 @@ class Crack:
     area_width_m: float = float("nan")  # mean width: its points' area (points x spacing^2) over its length
     depth_contrast: float = float("nan")  # how far its deepest points lie behind the surface around, in noise units
     chroma_contrast: float = float("nan")  # how far its hue lies from the surface around, % of chromaticity
+    resolvable_m: float = float("nan")  # narrowest opening the scan can measure there (spacing, noise)
 
 
 @dataclass(slots=True)

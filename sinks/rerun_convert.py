@@ -225,9 +225,9 @@ def crack_boxes(cracks: list[Crack]) -> rr.Boxes3D:
         centers.append(c.center)
         half_sizes.append([c.length_m / 2, max(c.width_m / 2, 0.002), 0.003])
         severity = "severe" if c.severe else "hairline"
-        labels.append(
-            f"crack {c.instance_id}: {c.length_m * 100:.1f} cm long, {c.width_m * 1000:.1f} mm wide ({severity})"
-        )
+        # a width below what the scan resolves there is not a measurement: say so, never a number
+        wide = f"{c.width_m * 1000:.1f} mm wide" if c.width_resolved else "width not measurable"
+        labels.append(f"crack {c.instance_id}: {c.length_m * 100:.1f} cm long, {wide} ({severity})")
         colors.append(CRACK_COLOR if c.severe else MILD_CRACK_COLOR)
     return rr.Boxes3D(centers=centers, half_sizes=half_sizes, quaternions=quats, labels=labels, colors=colors)
 

@@ -49,7 +49,8 @@ def cracks(
     ),
     detector: str | None = typer.Option(
         None,
-        help="isolation-forest | robust-covariance | one-class-svm | lof | kmeans | gmm | mean-shift.",
+        help="isolation-forest (default) | ridge (orthoimage ridges) | robust-covariance | one-class-svm | lof | "
+        "kmeans | gmm | mean-shift.",
     ),
     resolution: float | None = typer.Option(
         None, help="Evaluation grid in metres (default: 1 mm for columns/walls, 1 cm for slabs)."
@@ -103,8 +104,10 @@ def cracks(
     for c in result.cracks:
         x, y, z = c.center
         flag = " SEVERE" if c.severe else ""
-        width = f"{c.width_m * 1000:.1f} mm" + ("" if c.width_resolved else " (≤ spacing)")
-        width += f" (widest {c.max_width_m * 1000:.1f} mm)"
+        if c.width_resolved:
+            width = f"{c.width_m * 1000:.1f} mm (widest {c.max_width_m * 1000:.1f} mm)"
+        else:
+            width = f"not measurable (present; the scan resolves {c.resolvable_m * 1000:.1f} mm here)"
         print(
             f"  crack {c.instance_id:3d} at ({x:.3f}, {y:.3f}, {z:.3f}) length {c.length_m:.3f} m "
             f"width {width} points {c.num_points}{flag}"
@@ -112,12 +115,16 @@ def cracks(
     if result.scores is not None:
         s = result.scores
         print(f"precision {s.precision:.3f} recall {s.recall:.3f} F1 {s.f1:.3f}")
-        print(
-            f"main true crack against its reported crack: length {s.found_length_m:.3f} / "
-            f"{s.true_length_m:.3f} m (error {s.length_error_m:.3f}), width {s.found_width_m * 1000:.1f} / "
-            f"{s.true_width_m * 1000:.1f} mm (error {s.width_error_m * 1000:.1f})"
-        )
-        print(
-            f"{s.found_cracks} of {s.true_cracks} true cracks found; median error length "
-            f"{s.median_length_error_m:.3f} m, width {s.median_width_error_m * 1000:.1f} mm"
-        )
+        if np.isfinite(s.found_length_m):
+            print(
+                f"main true crack against its reported crack: length {s.found_length_m:.3f} / "
+                f"{s.true_length_m:.3f} m (error {s.length_error_m:.3f}), width {s.found_width_m * 1000:.1f} / "
+                f"{s.true_width_m * 1000:.1f} mm (error {s.width_error_m * 1000:.1f})"
+            )
+        elif np.isfinite(s.true_length_m):
+            print(f"main true crack ({s.true_length_m:.3f} m long): not found")
+        found = f"{s.found_cracks} of {s.true_cracks} true cracks found"
+        if s.found_cracks:
+            found += f"; median error length {s.median_length_error_m:.3f} m, "
+            found += f"width {s.median_width_error_m * 1000:.1f} mm"
+        print(found)

@@ -40,6 +40,7 @@ class Detector(StrEnum):
     KMEANS = "kmeans"
     GMM = "gmm"
     MEAN_SHIFT = "mean-shift"
+    RIDGE = "ridge"  # not a point-feature detector: thin ridges on the faces' orthoimages (damage/ridge.py)
 
 
 @dataclass(frozen=True, slots=True)
@@ -161,6 +162,8 @@ def detect(
     """Run one detector over (N, D) features. Features are standardised first (robust covariance, SVM and
     k-means are not scale-free); the isolation forest does not need it but does not mind."""
     kind = parse_detector(detector) if isinstance(detector, str) else detector
+    if kind not in _DETECTORS:
+        raise InputError(f"detector {kind.value!r} does not work on point features")
     x = np.asarray(features, np.float64)
     std = x.std(axis=0)
     x = (x - x.mean(axis=0)) / np.where(std > 0, std, 1.0)

@@ -174,6 +174,22 @@ def crack_shape(
     return CrackShape(rect.length, rect.width, width, max_width, centre, axis, basis[2], len(widths))
 
 
+def resolvable_width(surface: np.ndarray, normal: np.ndarray, spacing_m: float, sample: int = 2000) -> float:
+    """The narrowest opening the scan can measure at a crack: two samples across it (Nyquist: twice the local
+    point spacing) widened by the surface noise on both sides of it (twice the robust spread of the surface's
+    offsets from its plane), since the noise blurs where an opening starts and ends. Local spacing and noise are
+    those of `surface`, the element's points around the crack; fewer than 10 of them: twice `spacing_m`."""
+    pts = np.asarray(surface, np.float64)
+    if len(pts) < 10:
+        return 2.0 * spacing_m
+    pick = pts[:: max(1, len(pts) // sample)]
+    dist, _ = cKDTree(pts).query(pick, k=2, workers=-1)
+    local = float(np.median(dist[:, 1]))
+    offset = (pts - pts.mean(axis=0)) @ np.asarray(normal, np.float64)
+    noise = 1.4826 * float(np.median(np.abs(offset - np.median(offset))))
+    return 2.0 * local + 2.0 * noise
+
+
 def surface_around(tree: cKDTree, points: np.ndarray, members: np.ndarray, reach_m: float) -> np.ndarray:
     """The element's points (crack or not) within `reach_m` of a crack's points: the surface the crack is
     measured on. Queried from at most 500 of the crack's points, spread along it."""
@@ -247,7 +263,8 @@ def measure_cracks(
         if shape.length < min_elongation * shape.width:
             continue
         ids[members] = len(cracks) + 1
-        resolved = shape.width >= spacing_m
+        resolvable = resolvable_width(surface, shape.normal, spacing_m)
+        resolved = shape.width >= resolvable
         width = max(shape.width, spacing_m)
         area = len(members) * spacing_m**2  # each point stands for a spacing-sized square of the surface
         cracks.append(
@@ -264,6 +281,7 @@ def measure_cracks(
                 max_width_m=float(max(shape.max_width, spacing_m)),
                 rect_width_m=float(shape.rect_width),
                 area_width_m=float(area / max(shape.length, _EPS)),
+                resolvable_m=float(resolvable),
             )
         )
     return cracks, ids

@@ -30,6 +30,7 @@ from aftershock.pipeline.damage.drift import DriftResult, measure_drift
 from aftershock.pipeline.damage.features import FeatureSet, compute_features, parse_features
 from aftershock.pipeline.damage.measure import Scores, fit_plane, keep_narrow, measure_cracks, score, supported
 from aftershock.pipeline.damage.recess import depth_z, keep_recessed
+from aftershock.pipeline.damage.ridge import ridge_mask, settings_of
 from aftershock.pipeline.damage.tint import keep_tinted, measure_tint
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import point_spacing, voxel_downsample
@@ -141,12 +142,18 @@ def _round(x: float) -> float | None:
     return None if not np.isfinite(x) else round(float(x), 4)
 
 
+WIDTH_NOT_MEASURABLE: Final = "present, width not measurable: narrower than the scan resolves here"
+
+
 def crack_json(c: Crack) -> dict[str, Any]:
+    """One crack; a width below what the scan resolves there is null, with the reason and the limit."""
     return {
         "id": c.instance_id,
         "position": [round(float(v), 4) for v in c.center],
         "length_m": round(c.length_m, 4),
-        "width_m": round(c.width_m, 4),
+        "width_m": round(c.width_m, 4) if c.width_resolved else None,
+        "width_reason": None if c.width_resolved else WIDTH_NOT_MEASURABLE,
+        "resolvable_mm": _round(c.resolvable_m * 1000),
         "max_width_m": _round(c.max_width_m),
         "rectangle_width_m": _round(c.rect_width_m),
         "area_width_m": _round(c.area_width_m),
@@ -183,6 +190,31 @@ def decision_threshold(detection: Detection, cfg: CrackConfig) -> float:
         valley = valley_threshold(s, detection.threshold, cfg.valley_rise)
         return max(valley, null) if cfg.null_sigmas > 0 else valley
     return detection.threshold
+
+
+def _point_detection(
+    part: LabelledCloud, feats: FeatureSet, det: Detector, spacing: float, cfg: CrackConfig, timings: dict[str, float]
+) -> np.ndarray:
+    """Crack candidates of a point-feature detector: features → detector → scan-edge points lowered to the median
+    → threshold by the configured rule → smoothing → support clean-up → growth (see `find_cracks`)."""
+    t0 = time.perf_counter()
+    x = compute_features(part, feats, cfg)
+    timings["features"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    detection = detect(
+        x, det, seed=cfg.seed, fit_points=cfg.fit_points, clusters=CLUSTERS_PER_FEATURE.get(feats.value, 2)
+    )
+    if det in ANOMALY_DETECTORS:
+        edge_cell = cfg.edge_spacings * spacing
+        detection = Detection(edge_suppressed(part.points, detection.score, edge_cell), detection.threshold)
+        detection = Detection(detection.score, decision_threshold(detection, cfg))
+    sigma = robust_sigma(detection.score)
+    detection = smooth(part.points, detection, cfg.smooth_cell_m, cfg.smooth_keep_raw)
+    support_m = cfg.support_spacings * spacing
+    mask = supported(part.points, detection.mask, support_m, cfg.min_support)
+    mask = grow(part.points, mask, detection.score, detection.threshold - cfg.grow_sigmas * sigma, cfg.grow_m)
+    timings["detect"] = time.perf_counter() - t0
+    return mask
 
 
 def find_cracks(
@@ -242,23 +274,14 @@ def find_cracks(
             f"too sparse for crack measurement: point spacing {spacing * 1000:.1f} mm is coarser than the "
             f"{cfg.max_spacing_m * 1000:.0f} mm limit (cracks narrower than the spacing cannot be seen)"
         )
-    t0 = time.perf_counter()
-    x = compute_features(part, feats, cfg)
-    timings["features"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    detection = detect(
-        x, det, seed=cfg.seed, fit_points=cfg.fit_points, clusters=CLUSTERS_PER_FEATURE.get(feats.value, 2)
-    )
-    if det in ANOMALY_DETECTORS:
-        edge_cell = cfg.edge_spacings * spacing
-        detection = Detection(edge_suppressed(part.points, detection.score, edge_cell), detection.threshold)
-        detection = Detection(detection.score, decision_threshold(detection, cfg))
-    sigma = robust_sigma(detection.score)
-    detection = smooth(part.points, detection, cfg.smooth_cell_m, cfg.smooth_keep_raw)
-    support_m = cfg.support_spacings * spacing
-    mask = supported(part.points, detection.mask, support_m, cfg.min_support)
-    mask = grow(part.points, mask, detection.score, detection.threshold - cfg.grow_sigmas * sigma, cfg.grow_m)
-    timings["detect"] = time.perf_counter() - t0
+    if det == Detector.RIDGE:
+        t0 = time.perf_counter()
+        mask = ridge_mask(part, spacing, settings_of(cfg), cfg.seed)
+        timings["detect"] = time.perf_counter() - t0
+        feature_name = "orthoimage"
+    else:
+        mask = _point_detection(part, feats, det, spacing, cfg, timings)
+        feature_name = feats.value
     t0 = time.perf_counter()
     link = max(cfg.link_m, cfg.link_spacings * spacing)
     cracks, ids = measure_cracks(
@@ -283,7 +306,7 @@ def find_cracks(
         cracks=cracks,
         resolution_m=float(res),
         spacing_m=spacing,
-        features=feats.value,
+        features=feature_name,
         detector=det.value,
         truth=carried,
         scores=scores,

@@ -7,11 +7,10 @@ alone cannot find cracks): stains, run-off dirt streaks (long and thin, like a c
 varies across the element and from face to face. Concrete is bare (grey or buff, speckled with aggregate) or
 painted (a smooth, even coat). Parts of the surface can be hidden (occlusion: no points there).
 
-Cracks wander across a face, narrow towards their ends with an opening that varies along them, some branch,
-some have spalled edges (the opening widens over a short stretch, shallower and rougher: such spalls are
-marked as crack, as the field data marks them). A point is a crack point when it lies inside a crack's visible
-opening; inside, the surface drops into the crack (a V of the crack's depth), is darker and returns less
-intensity (through paint, the crack shows the concrete underneath).
+With `marks`, what a site adds on top, each long, thin or straight-edged but no crack: formwork board marks
+(straight lips across a face), a construction joint (a straight recessed groove across a face), a pour step (one
+side proud of the other: an edge in depth), a cast shadow (a straight-edged darker part of a face), and paint in
+hue (a painted stripe, a scribbled line and a patch, each of a colour the concrete does not have).
 """
 
 from __future__ import annotations
@@ -111,11 +110,76 @@ def _streaks(pts: np.ndarray, faces: list[_Face], face_of: np.ndarray, rng: np.r
     return np.clip(out, 0, 1)
 
 
+_MARK_HUES: Final = ((178, 52, 44), (40, 84, 170), (214, 180, 30), (60, 140, 70), (120, 60, 140))
+
+
+def _site_marks(
+    pts: np.ndarray, faces: list[_Face], face_of: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per point: offset along the normal (m), brightness factor, and paint (colour (N, 3), weight (N,)) of the
+    site's marks (module docstring). Each face gets its own draw; one joint and one step per element at most."""
+    n = len(pts)
+    offset = np.zeros(n)
+    bright = np.ones(n, np.float32)
+    paint = np.zeros((n, 3), np.float32)
+    weight = np.zeros(n, np.float32)
+    joint_face, step_face = int(rng.integers(len(faces))), int(rng.integers(len(faces)))
+    for fi, f in enumerate(faces):  # a handful of faces per element
+        on = np.flatnonzero(face_of == fi)
+        u = (pts[on] - f.origin) @ f.u
+        v = (pts[on] - f.origin) @ f.v
+        # formwork board marks: straight lips every board width, across the face's long side
+        across = v if f.size_v >= f.size_u else u
+        board = rng.uniform(0.1, 0.3)
+        d = np.abs(((across + rng.uniform(0, board)) % board) - board / 2) - board / 2  # 0 on a board joint
+        lip = np.exp(-((d / rng.uniform(0.001, 0.003)) ** 2))
+        offset[on] += rng.uniform(0.0003, 0.0015) * lip
+        bright[on] *= 1 - rng.uniform(0.0, 0.08) * lip
+        if fi == joint_face:  # a construction joint: a straight recessed groove right across the face
+            at = rng.uniform(0.2, 0.8) * across.max()
+            half = rng.uniform(0.003, 0.008)
+            g = np.clip(1 - np.abs(across - at) / half, 0, 1)
+            offset[on] -= rng.uniform(0.002, 0.006) * g
+            bright[on] *= 1 - rng.uniform(0.05, 0.25) * g
+        if fi == step_face and rng.random() < 0.6:  # a pour step: one side proud of the other
+            at = rng.uniform(0.2, 0.8) * across.max()
+            offset[on] += rng.uniform(0.002, 0.008) * (across > at)
+        if rng.random() < 0.5:  # a cast shadow: a straight-edged darker part of the face
+            t = rng.uniform(0, np.pi)
+            s = np.cos(t) * (u - u.mean()) + np.sin(t) * (v - v.mean())
+            bright[on] *= np.where(s > rng.uniform(-0.1, 0.1), 1 - rng.uniform(0.15, 0.4), 1.0).astype(np.float32)
+        hue = np.asarray(_MARK_HUES[int(rng.integers(len(_MARK_HUES)))], np.float32)
+        if rng.random() < 0.5:  # a painted stripe, straight, 1-4 cm wide
+            t = rng.uniform(0, np.pi)
+            s = np.cos(t) * (u - u.mean()) + np.sin(t) * (v - v.mean())
+            on_paint = np.abs(s - rng.uniform(-0.1, 0.1)) < rng.uniform(0.005, 0.02)
+            paint[on[on_paint]], weight[on[on_paint]] = hue, rng.uniform(0.5, 0.9)
+        if rng.random() < 0.5:  # a scribbled line in paint or marker, wandering, 3-8 mm wide
+            c0 = np.array([rng.uniform(0.2, 0.8) * u.max(), rng.uniform(0.2, 0.8) * v.max()])
+            t = np.linspace(0, 1, 40)[:, None]
+            a = rng.uniform(0, np.pi)
+            line = c0 + (t - 0.5) * rng.uniform(0.1, 0.4) * np.array([np.cos(a), np.sin(a)])
+            line += 0.02 * np.sin(t * rng.uniform(5, 15)) * np.array([-np.sin(a), np.cos(a)])
+            from scipy.spatial import cKDTree
+
+            dist, _ = cKDTree(line).query(np.c_[u, v], k=1)
+            on_line = dist < rng.uniform(0.0015, 0.004)
+            hue2 = np.asarray(_MARK_HUES[int(rng.integers(len(_MARK_HUES)))], np.float32)
+            paint[on[on_line]], weight[on[on_line]] = hue2, rng.uniform(0.6, 0.95)
+        if rng.random() < 0.5:  # a painted patch (a repair, a sign)
+            c0 = np.array([rng.uniform(0, u.max()), rng.uniform(0, v.max())])
+            r = rng.uniform(0.03, 0.12)
+            patch = (np.abs(u - c0[0]) < r) & (np.abs(v - c0[1]) < r * rng.uniform(0.5, 2))
+            paint[on[patch]], weight[on[patch]] = hue, rng.uniform(0.5, 0.9)
+    return offset, bright, (paint, weight)  # type: ignore[return-value]
+
+
 def cracked_element(
-    kind: str, seed: int, spacing_m: float = 0.004, intact: bool = False
+    kind: str, seed: int, spacing_m: float = 0.004, intact: bool = False, marks: bool = False
 ) -> tuple[LabelledCloud, np.ndarray, list[CrackTruth]]:
     """A dense labelled cloud of a cracked `column`, `wall`, `slab` or `beam`, its boolean crack mask, and its
-    cracks (`intact`: the same element without any crack, for calibrating what a crack-free element scores).
+    cracks (`intact`: the same element without any crack, for calibrating what a crack-free element scores;
+    `marks`: with the site's marks of the module docstring, drawn from a stream of their own).
 
     Coordinates are metres in the element's frame (base centre at the origin, z up). The cloud's class is
     the element's (column, wall, floor, beam) and its instance id 1. Each crack's `width_m` is the mean width
@@ -180,6 +244,13 @@ def cracked_element(
     stains = _blobs(pts, rng, int(rng.integers(2, 7)), (0.01, 0.08))  # stains: dark but flat, not cracks
     colors *= (1 - np.clip(stains, 0, 1) * rng.uniform(0.15, 0.35))[:, None]
     colors *= (1 - _streaks(pts, faces, face_of, rng) * rng.uniform(0.1, 0.3))[:, None]
+
+    if marks:
+        rng_marks = np.random.default_rng([int(seed), sum(map(ord, kind)), 17, 2])
+        mark_offset, bright, (paint, weight) = _site_marks(pts, faces, face_of, rng_marks)
+        offset += mark_offset
+        colors *= bright[:, None]
+        colors = colors * (1 - weight[:, None]) + paint * shade[:, None] * weight[:, None]
 
     mask = np.zeros(n, bool)
     concrete = np.asarray(_CONCRETE_TONES[int(rng.integers(len(_CONCRETE_TONES)))], np.float32)
