@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint typecheck bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-all train screenshot clean
+.PHONY: setup demo test test-faults lint typecheck bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -71,7 +71,7 @@ bench-objects: setup
 	$(BIN)/pytest -q -m slow -s tests/bench/bench_objects.py
 
 bench-cracks: setup
-	$(BIN)/pytest -q -m slow -s tests/bench/bench_cracks_ridge.py tests/bench/bench_cracks.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_cracks_region.py tests/bench/bench_cracks_ridge.py tests/bench/bench_cracks.py
 
 bench-lrgnet: setup
 	$(BIN)/pytest -q -m slow -s tests/bench/bench_lrgnet.py
@@ -84,7 +84,12 @@ bench-transfer: setup
 bench-batch: setup
 	$(BIN)/pytest -q -m slow -s tests/bench/bench_batch.py
 
-bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch
+# Every real log in ../shared/data/lidar: floor, ceiling and wall agreement with planes found without the labeller
+# (pipeline.planecheck), the class shares of each map, the run's warnings (REAL_ARGS: options for every run).
+bench-real: setup
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_real.py
+
+bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real
 
 # Rebuild every network from simulator data into out/weights (the shipped files in models/weights are left alone;
 # run the pipeline on the rebuilt ones with --set label.weights=out/weights/mcpnet.pt and the like).
@@ -94,6 +99,7 @@ train: setup
 	$(BIN)/aftershock train mcpnet --out $(TRAINED)/mcpnet.pt --force
 	$(BIN)/aftershock train lrgnet --out $(TRAINED)/lrgnet.pt --force
 	$(BIN)/aftershock train crackembed --out $(TRAINED)/crackembed.pt --force
+	$(BIN)/python -m aftershock.models.scan_reference_train $(TRAINED)/scan_reference.json
 	$(BIN)/python -m aftershock.models.compare_weights models/weights $(TRAINED)
 
 # The README picture: the demo recording in Rerun's web viewer, headless (needs Debian's chromium).

@@ -132,6 +132,8 @@ def load_weights(path: str | Path, expected: dict[str, Any], layouts: dict[int, 
     if header.get("version") != FORMAT_VERSION:
         raise InputError(f"LRGNet weights format {header.get('version')} != {FORMAT_VERSION}; {REBUILD_HINT}", p)
     settings = header.get("settings", {})
+    if not isinstance(settings, dict):
+        raise InputError(f"not an LRGNet weights file: its settings are a {type(settings).__name__}; {REBUILD_HINT}", p)
     layout = (settings.get("feature_version"), settings.get("features"))
     if layouts.get(layout[0]) != layout[1]:
         known = ", ".join(f"{v} ({n} features)" for v, n in layouts.items())

@@ -154,7 +154,7 @@ def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, Ne
     blob = load_header(path)
     try:
         cfg = NetConfig.from_dict(blob["config"])
-    except (TypeError, KeyError) as exc:
+    except (TypeError, KeyError, AttributeError, ValueError) as exc:
         raise InputError(f"weights header does not match this version ({exc}); {REBUILD_HINT}", path) from None
     if kind is not None and cfg.kind != kind:
         raise InputError(f"weights are for {cfg.kind!r}, expected {kind!r}; {REBUILD_HINT}", path)

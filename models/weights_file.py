@@ -28,4 +28,16 @@ def read_weights(path: str | Path, what: str, hint: str) -> dict[str, Any]:
         raise InputError(f"not a readable {what} weights file ({type(exc).__name__}); {hint}", p) from None
     if not isinstance(blob, dict):
         raise InputError(f"not an aftershock {what} weights file; {hint}", p)
+    for key in _STATE_KEYS & blob.keys():
+        state = blob[key]
+        if not isinstance(state, dict) or not all(
+            isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
+        ):
+            raise InputError(f"not an aftershock {what} weights file: its {key} is not a table of tensors; {hint}", p)
+        for name, tensor in state.items():  # a network of NaN labels nothing, silently
+            if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+                raise InputError(f"{what} weights hold NaN or infinite values ({name}); {hint}", p)
     return blob
+
+
+_STATE_KEYS: Final = frozenset({"state", "state_dict"})

@@ -15,6 +15,7 @@ import typer
 
 from aftershock.pipeline.commands import batch, cracks, drift, evaluate, info, refine, run, simulate, train, view
 from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
+from aftershock.pipeline.text import SafeFormatter, safe
 
 EXIT_SIGINT: Final = 130  # 128 + the signal's number, as shells report a process a signal ended
 EXIT_SIGTERM: Final = 143
@@ -57,7 +58,7 @@ app.command()(batch.batch)
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     if issubclass(category, DamagedLogWarning | UserWarning):
-        print(f"aftershock: warning: {message}", file=sys.stderr)
+        print(f"aftershock: warning: {safe(message)}", file=sys.stderr)
     else:
         print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
@@ -66,11 +67,20 @@ class _Terminated:
     """Set when SIGTERM arrived: the run stops as after Ctrl-C, and the exit code says which signal it was."""
 
     seen: bool = False
+    interrupted: bool = False  # Ctrl-C or SIGTERM arrived
 
 
 def _terminate(signum: int, _frame: object) -> None:
     # `docker stop`, systemd and `timeout` send SIGTERM: stop like Ctrl-C, so every output is finished.
     _Terminated.seen = True
+    _Terminated.interrupted = True
+    raise KeyboardInterrupt
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    # Ctrl-C, remembered: a KeyboardInterrupt raised inside a C extension's import comes out as another error
+    # (open3d's "ImportError: initialization failed"), which must still read as the interruption it is
+    _Terminated.interrupted = True
     raise KeyboardInterrupt
 
 
@@ -83,17 +93,36 @@ def main(argv: list[str] | None = None) -> int:
     message, also 2), Ctrl-C exit code 130, SIGTERM the same clean stop with 143."""
     if not sys.stderr.isatty():  # no colour codes in logs and files: Rerun's and rich's loggers honour NO_COLOR
         os.environ.setdefault("NO_COLOR", "1")
+    # Rerun's Rust side logs its own connection and flush errors on stderr; aftershock reports them in one line
+    os.environ.setdefault("RUST_LOG", "off")
     logging.basicConfig(level=logging.WARNING, format="aftershock: %(levelname)s: %(message)s")
+    for handler in logging.getLogger().handlers:
+        handler.setFormatter(SafeFormatter("aftershock: %(levelname)s: %(message)s"))
     warnings.showwarning = _show_warning
-    _Terminated.seen = False
-    if threading.current_thread() is threading.main_thread():
+    _Terminated.seen = _Terminated.interrupted = False
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
         previous = signal.signal(signal.SIGTERM, _terminate)
+        previous_int = signal.signal(signal.SIGINT, _interrupt)
+    try:
+        code = _interrupted(argv)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
+    return _interrupted_code() if code == EXIT_SIGINT else code
+
+
+def _interrupted(argv: list[str] | None) -> int:
+    """`_dispatch`, where an error that an interruption caused (not the user's input) ends as the interruption."""
     try:
         code = _dispatch(argv)
-    finally:
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, previous)
-    return _interrupted_code() if code == EXIT_SIGINT else code
+    except Exception:
+        if not _Terminated.interrupted:
+            raise
+        print("aftershock: interrupted", file=sys.stderr)
+        return EXIT_SIGINT
+    return EXIT_SIGINT if _Terminated.interrupted and code not in (0, EXIT_SIGINT) else code
 
 
 def _dispatch(argv: list[str] | None) -> int:
@@ -109,7 +138,15 @@ def _dispatch(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print("aftershock: interrupted", file=sys.stderr)
         return EXIT_SIGINT
+    except OSError as exc:  # a path the system refuses (a name over 255 bytes, no permission) wherever it entered
+        where = next((f for f in (exc.filename, exc.filename2) if f is not None), None)
+        what = exc.strerror or type(exc).__name__
+        print(f"aftershock: error: {safe(f'{where}: {what}' if where is not None else what)}", file=sys.stderr)
+        return 2
     except typer.Exit as exc:
+        if isinstance(exc.__cause__, KeyboardInterrupt):  # typer turns a Ctrl-C it meets into Exit(130), silently
+            print("aftershock: interrupted", file=sys.stderr)
+            return EXIT_SIGINT
         return exc.exit_code
     except typer.Abort:
         print("aftershock: interrupted", file=sys.stderr)

@@ -1,50 +1,26 @@
 """Labelled point-cloud files in the DESIGN.md format: PLY with `x y z`, `red green blue` and, where known,
-`class_id`, `instance_id` (and optionally `intensity`, `nx ny nz`). Inputs and outputs use the same format."""
+`class_id`, `instance_id` (and optionally `intensity`, `nx ny nz`, `confidence`). Inputs and outputs use the same
+format."""
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
 from typing import Final
 
 import numpy as np
 from plyfile import PlyData, PlyElement, PlyParseError
 
-from aftershock.pipeline.errors import InputError, OutputError
+from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.outputs import check_output, same_file, write_atomically
+
+__all__ = ["check_output", "read_cloud", "same_file", "write_atomically", "write_cloud"]
 from aftershock.pipeline.types import LabelledCloud
 
 _INTENSITY_NAMES: Final = ("intensity", "scalar_intensity", "scalar_Intensity", "reflectance")
 # A PLY header comment saying that red, green, blue stand in for a colour the source did not have
 STAND_IN_COLOR_COMMENT: Final = "aftershock: no colour recorded (red green blue are a stand-in)"
-
-
-def check_output(path: str | Path, force: bool = False, inputs: Iterable[str | Path] = ()) -> Path:
-    """Refuse to overwrite an existing file unless forced, a folder always, and any of `inputs` (also through
-    symlinks, even with `force`: the log would be destroyed while it is read); make the parent folder; fail
-    early if unwritable."""
-    p = Path(path)
-    if p.is_dir():
-        raise OutputError("is a folder; give a file name", p)
-    for src in inputs:
-        if _same_file(p, Path(src)):
-            raise OutputError(f"is the input {src}; choose another output", p)
-    if p.exists() and not force:
-        raise OutputError("already exists (pass --force to overwrite)", p)
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create the folder: {exc.strerror}", p.parent) from None
-    if not _writable(p.parent):
-        raise OutputError("folder is not writable", p.parent)
-    return p
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def check_ply_body(path: Path) -> None:
@@ -59,6 +35,7 @@ def check_ply_body(path: Path) -> None:
     lines = head[:end].decode("ascii", "replace").splitlines()
     fmt = next((ln.split()[1] for ln in lines if ln.startswith("format") and len(ln.split()) > 1), "ascii")
     if fmt == "ascii":
+        _check_ply_rows(path, lines, body_at)
         return
     sample = head[body_at : body_at + 256]
     if len(sample) >= 16 and all(c in _ASCII_NUMBER_BYTES for c in sample):
@@ -67,6 +44,39 @@ def check_ply_body(path: Path) -> None:
     expected = _ply_fixed_bytes(lines)
     if expected is not None and size < expected:
         raise InputError(f"the header says {fmt} with {expected} bytes of data, but the file holds {size}", path)
+    if expected is not None and size > expected:
+        _warn(path, f"the header declares {expected} bytes of data but the file holds {size}; the rest is not read")
+
+
+def _warn(path: Path, message: str) -> None:
+    import warnings
+
+    from aftershock.pipeline.errors import DamagedLogWarning
+
+    warnings.warn(DamagedLogWarning(f"{path}: {message}"), stacklevel=3)
+
+
+def _check_ply_rows(path: Path, lines: list[str], body_at: int) -> None:
+    """An ASCII PLY whose elements declare fewer rows than its body holds (10 vertices over 500 rows) reads only
+    the declared ones: say so. Rows are counted in blocks, never holding the file."""
+    declared = 0
+    for ln in lines:
+        words = ln.split()
+        if words[:1] == ["element"] and len(words) == 3 and words[2].isdigit():
+            declared += int(words[2])
+    rows = 0
+    carry = b""
+    with path.open("rb") as fh:
+        fh.seek(body_at)
+        while block := fh.read(1 << 20):
+            pieces = (carry + block).split(b"\n")
+            carry = pieces.pop()
+            rows += sum(1 for piece in pieces if piece.strip())
+    rows += bool(carry.strip())  # a last row without its newline
+    if rows > declared:
+        _warn(
+            path, f"the header declares {declared} rows but the file holds {rows}; only the first {declared} are read"
+        )
 
 
 _PLY_HEADER_MAX: Final = 64 * 1024
@@ -92,10 +102,6 @@ def _ply_fixed_bytes(lines: list[str]) -> int | None:
                 return None
             total += count * _PLY_SIZES[words[1]]
     return total
-
-
-def _writable(folder: Path) -> bool:
-    return os.access(folder, os.W_OK | os.X_OK)
 
 
 def read_cloud(path: str | Path) -> LabelledCloud:
@@ -139,10 +145,11 @@ def read_cloud(path: str | Path) -> LabelledCloud:
         normals = np.stack([v["nx"], v["ny"], v["nz"]], axis=1).astype(np.float32)
     class_ids = np.asarray(v["class_id"]).astype(np.uint16) if "class_id" in names else None
     instance_ids = np.asarray(v["instance_id"]).astype(np.uint32) if "instance_id" in names else None
-    return LabelledCloud(points, colors, intensity, class_ids, instance_ids, normals)
+    confidence = np.asarray(v["confidence"], dtype=np.float32) if "confidence" in names else None
+    return LabelledCloud(points, colors, intensity, class_ids, instance_ids, normals, confidence)
 
 
-_KNOWN_FLOATS: Final = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha"})
+_KNOWN_FLOATS: Final = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha", "confidence"})
 
 
 def finite_points(
@@ -198,24 +205,12 @@ def write_cloud(
     if cloud.instance_ids is not None:
         fields.append(("instance_id", "i4"))
         columns["instance_id"] = cloud.instance_ids
+    if cloud.confidence is not None:
+        fields.append(("confidence", "f4"))
+        columns["confidence"] = cloud.confidence
     data = np.empty(n, dtype=fields)
     for name, _ in fields:
         data[name] = columns[name]
     ply = PlyData([PlyElement.describe(data, "vertex")], text=not binary, comments=comments)
     write_atomically(p, lambda tmp: ply.write(str(tmp)))
     return p
-
-
-def write_atomically(path: Path, write: Callable[[Path], object]) -> None:
-    """`write(tmp)` into a temporary file beside `path`, then rename it over `path`: a full disk or an
-    interruption leaves the old file (if any) as it was, never half a file. OutputError names `path`."""
-    tmp = path.with_name(f".{path.name}.part")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise OutputError(f"cannot write: {exc.strerror or exc}", path) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise

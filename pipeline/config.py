@@ -35,6 +35,9 @@ Angle = Annotated[float, Field(gt=0, le=180)]  # degrees
 Count = Annotated[int, Field(ge=1)]
 NonNegativeCount = Annotated[int, Field(ge=0)]
 Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]  # numpy and torch take 32-bit seeds
+TimeOffset = Annotated[float, Field(ge=0, le=1e9)]  # seconds from a log's start: 31 years, past any mission
+# Voxel and cell sizes: below a millimetre a site's voxel keys overflow 64-bit integers and nothing is gained
+VoxelSize = Annotated[float, Field(ge=1e-3, le=1e3)]
 
 
 class _Section(BaseModel):
@@ -44,8 +47,8 @@ class _Section(BaseModel):
 class SourceConfig(_Section):
     topic: str | None = None
     pose_topic: str | None = None
-    start_s: NonNegative | None = None  # seconds from the log start
-    end_s: NonNegative | None = None
+    start_s: TimeOffset | None = None  # seconds from the log start
+    end_s: TimeOffset | None = None
     max_scans: Count | None = None
     every: Count = 1
 
@@ -53,7 +56,7 @@ class SourceConfig(_Section):
 class RegisterConfig(_Section):
     """KISS-ICP settings; None = chosen from the environment (indoor logs need a finer map)."""
 
-    voxel_size_m: Positive | None = None
+    voxel_size_m: VoxelSize | None = None
     min_range_m: NonNegative | None = None
     max_range_m: Positive | None = None
     deskew: bool = True
@@ -78,9 +81,10 @@ class StreamConfig(_Section):
 
 
 class MapConfig(_Section):
-    voxel_size_m: Positive = 0.1
-    context_cell_m: Positive = 0.3  # MCPNet context: 3 x 3 x 3 cells of this size around a point
-    context_points: Count = 50
+    voxel_size_m: VoxelSize = 0.1
+    context_cell_m: VoxelSize = 0.3  # MCPNet context: 3 x 3 x 3 cells of this size around a point
+    # points kept per context cell; every voxel holds this many slots, so a billion would take gigabytes at once
+    context_points: Annotated[int, Field(ge=1, le=4096)] = 50
 
 
 class LabelConfig(_Section):
@@ -166,6 +170,9 @@ class RerunConfig(_Section):
     # opens in Rerun's web viewer in minutes instead of not at all); 0 = every one.
     compact_above_mb: NonNegative = 64.0
     embeddings: bool = True  # with debug_layers: the MCPNet embedding layer too
+    # Map voxels whose labeller confidence (its probability for the class shown) is under this are drawn again
+    # in `world/uncertain` in one warning colour, so that a glance shows where the labels are guesses.
+    uncertain_below: Fraction = 0.5
 
 
 class LRGNetConfig(_Section):
@@ -235,7 +242,8 @@ LRGNET_MODE_DEFAULTS: Final[dict[bool, dict[str, float]]] = {
 class CrackConfig(_Section):
     resolution_m: Positive | None = None  # None = 1 mm for columns and walls, 1 cm for slabs
     features: str = "shade+crackembed"  # best balance of real elements and unseen simulated ones (bench_cracks)
-    detector: str = "isolation-forest"  # "ridge" (issue 30) did not beat it left out on the real elements (round C)
+    # "ridge" and "region" (issue 30) did not beat it left out on the real elements (ridge round C, region round R1)
+    detector: str = "isolation-forest"
     neighbourhood_m: Positive = 0.01
     shade_cell_m: NonNegative = (
         0.0  # shade: darkness against the mean of the 3 x 3 x 3 block of these voxels (0 = median)
@@ -304,6 +312,19 @@ class CrackConfig(_Section):
     ridge_straight_width_m: NonNegative = 0.0
     ridge_rim: bool = True  # at a face's rim (one side off the face) the other side alone is the reference
     ridge_member_z: NonNegative = 1.0  # a region's crack points: darker than around by this many robust sigmas
+    # detector "region" (damage/region.py): damaged regions on each face's orthoimages, evidence channels in robust
+    # z-scores of the face's own surface; chosen in bench_cracks_region (region_high calibrated on simulated intact
+    # elements only, the rest leave-one-out on the real elements); docs/benchmarks/cracks.md
+    # round R1: best on the four real elements (raw-mask F1: slab2 only, the columns 0); it did not transfer
+    region_channels: tuple[str, ...] = ("dark", "rough", "deficit")
+    region_scales_m: tuple[float, ...] = (0.02, 0.04, 0.08)
+    region_combine: Literal["sum", "max"] = "sum"
+    region_high: Positive = 17.0  # a region's peak evidence (90th percentile, robust sigmas) reaches this
+    region_gate_ratio: Positive = 1.25  # an element has cracks only if some region's peak reaches high x this
+    region_low_ratio: Fraction = 0.5
+    region_smooth_m: NonNegative = 0.01
+    region_open_m: NonNegative = 0.04  # evidence narrower than this (a joint's groove, a line) is no region; 0 = off
+    region_min_area_m2: NonNegative = 0.002
     element_voxel_m: Positive = 0.05  # element extraction: region growing on this grid ...
     element_radius_m: Positive = 0.1  # ... joining neighbours within this distance ...
     element_angle_deg: Angle = 20.0  # ... whose normals differ by less than this ...
@@ -352,23 +373,14 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     data: dict[str, Any] = {}
     if path is not None:
         p = Path(path)
-        if not p.is_file():
-            raise InputError("config file not found", p)
-        try:
-            text = p.read_text()
-            data = json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
-        except (json.JSONDecodeError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"not a valid {p.suffix.lstrip('.') or 'TOML'} config: {exc}", p) from None
+        data = _read_config_file(p)
     if not isinstance(data, dict):
         raise InputError(f"a config is a table of sections (source, map, label …), not a {type(data).__name__}", path)
     for item in overrides or []:
         key, sep, raw = item.partition("=")
         if not sep or "." not in key:
             raise InputError(f"override {item!r} is not of the form section.key=value")
-        try:
-            value: Any = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw
+        value = _override_value(key, raw)
         section, _, name = key.partition(".")
         table = data.setdefault(section, {})
         if not isinstance(table, dict):
@@ -382,8 +394,67 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         option = OPTION_OF.get(where)
         named = f"{where} ({option})" if option else where
         given = first.get("input")
-        value_text = f" (given {given!r})" if isinstance(given, int | float | str) else ""
+        value_text = f" (given {_shown(given)})" if isinstance(given, int | float | str) else ""
         raise InputError(f"config {named}: {first['msg']}{value_text}", path) from None
+
+
+_CONFIG_MAX_BYTES: Final = 1 << 20  # a settings file; anything larger is not one
+
+
+def _read_config_file(p: Path) -> Any:
+    """A TOML or JSON config file's table; one line naming the file for whatever it is instead (missing, a
+    folder, a pipe, unreadable, nested past what a parser holds, numbers past Python's 4300 digits)."""
+    try:
+        if not p.exists():
+            raise InputError("config file not found", p)
+        if p.is_dir():
+            raise InputError("is a folder, not a config file", p)
+        if not p.is_file():
+            raise InputError("is not a regular file (a config is read from a TOML or JSON file)", p)
+        if p.stat().st_size > _CONFIG_MAX_BYTES:
+            raise InputError(f"is {p.stat().st_size} bytes, too large for a config file", p)
+        text = p.read_text()
+    except OSError as exc:
+        raise InputError(f"cannot read the config file ({exc.strerror or exc})", p) from None
+    except UnicodeDecodeError:
+        raise InputError("not a valid config: it is not UTF-8 text", p) from None
+    kind = p.suffix.lstrip(".") or "TOML"
+    try:
+        return json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
+    except RecursionError:
+        raise InputError(f"not a valid {kind} config: it nests deeper than can be read", p) from None
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"not a valid {kind} config: {str(exc).splitlines()[0] if str(exc) else exc}", p) from None
+    except ValueError as exc:  # int() past sys.get_int_max_str_digits()
+        raise InputError(f"not a valid {kind} config: {_first_line(exc)}", p) from None
+
+
+def _override_value(key: str, raw: str) -> Any:
+    """A `--set` value: JSON if it parses as JSON, else the text itself; one line for what no parser holds."""
+    try:
+        return json.loads(raw)
+    except RecursionError:
+        raise InputError(f"--set {key}: the value nests deeper than can be read") from None
+    except json.JSONDecodeError:
+        return raw
+    except ValueError as exc:  # int() past sys.get_int_max_str_digits()
+        raise InputError(f"--set {key}: {_first_line(exc)}") from None
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    if "digits" in text and "integer" in text:
+        return "a number of more than 4300 digits"
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _shown(value: object) -> str:
+    """A given value for an error line: at most 40 characters (a 5,000-digit number cannot even be printed)."""
+    try:
+        text = repr(value)
+    except ValueError:
+        return "a number of more than 4300 digits"
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 # Settings the command line sets through their own options, named in errors as the user typed them.

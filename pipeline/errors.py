@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from aftershock.pipeline.text import safe
+
 
 class AftershockError(Exception):
-    """A problem with the user's input or environment, explained in one line."""
+    """A problem with the user's input or environment, explained in one line: names taken from files and paths
+    (a topic holding a newline or an ANSI escape) are printed with their control characters escaped."""
 
     def __init__(self, message: str, path: str | Path | None = None) -> None:
         self.path = str(path) if path is not None else None
-        super().__init__(f"{path}: {message}" if path is not None else message)
+        super().__init__(safe(f"{path}: {message}" if path is not None else message))
 
 
 class InputError(AftershockError):

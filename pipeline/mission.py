@@ -123,13 +123,18 @@ def make_sinks(
 ) -> list[Sink]:
     """The sinks asked for; each checks its output path (exists without --force, not writable) right away,
     and no output may be one of the `inputs`, even with --force."""
-    from aftershock.pipeline.cloud_io import check_output
+    from aftershock.pipeline.outputs import check_distinct, check_output
 
+    export_files = ("map.ply", "poses_tum.txt", "poses_kitti.txt", "summary.json", "refined.ply", "damage.json")
+    named: dict[str, Path | None] = {"--save": save, "--mcap-out": mcap_out}
+    if export is not None:
+        named |= {f"--export ({name})": export / name for name in export_files}
+    check_distinct(named)  # `--save P --mcap-out P` would keep only one of them
     for out in (save, mcap_out):
         if out is not None:
             check_output(out, force, inputs)
     if export is not None:
-        for name in ("map.ply", "poses_tum.txt", "poses_kitti.txt", "summary.json", "refined.ply", "damage.json"):
+        for name in export_files:
             if (export / name).exists():
                 check_output(export / name, True, inputs)
     sinks: list[Sink] = []
@@ -219,6 +224,7 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
         "trajectory": result.trajectory.as_dict() if result.trajectory else None,
         "outputs": outputs,
+        "warnings": s.warnings,  # said once per run and reason: scans outside the networks' training data
     }
     return out
 

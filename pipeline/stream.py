@@ -42,6 +42,7 @@ from aftershock.pipeline.register import (
     make_registrar,
     register_stage,
 )
+from aftershock.pipeline.scan_stats import DistributionCheck, Reference
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
 from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan
@@ -295,6 +296,7 @@ class _Run:
     true_poses: list[np.ndarray | None] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
     last_map_seq: int | None = None  # the scan the sinks last got the map after
+    distribution: DistributionCheck | None = None  # scans unlike the networks' training scans (learned only)
 
     def add(self, frame: Frame) -> None:
         self.summary.scans += 1
@@ -357,6 +359,8 @@ def _set_up(
         clusterer=InstanceClusterer(cfg.cluster, labeller.affinity, labeller.embedding_dim),
         t_start=t_start,
     )
+    if labeller.name != FALLBACK_LABELLER and not isinstance(labeller, TruthStandIn):  # the baseline learnt nothing
+        run.distribution = DistributionCheck(Reference.load(), notice)
     return run, (s for part in (skipped, [first], it) for s in part)
 
 
@@ -369,6 +373,8 @@ def _loop(
     try:
         for frame in frames:
             run.add(frame)
+            if run.distribution is not None:
+                run.distribution.check(frame)
             if run.summary.scans % map_every == 0:
                 t0 = perf_counter()
                 cloud = shown_map(run.vmap, run.clusterer)
@@ -415,6 +421,7 @@ def _finish(
         summary.damaged_log = info.report.damage is not None
         summary.damage = info.report.damage
         summary.level_tilt_deg = run.registrar.tilt_deg
+        summary.warnings = list(run.distribution.warnings) if run.distribution is not None else []
         for sink in sinks:  # one sink that cannot write does not keep the others from finishing
             try:
                 if run.seqs and run.last_map_seq != run.seqs[-1]:

@@ -155,11 +155,13 @@ class LabelledCloud:
     class_ids: np.ndarray | None = None  # (N,) uint16
     instance_ids: np.ndarray | None = None  # (N,) uint32
     normals: np.ndarray | None = None  # (N, 3) float32
+    # (N,) float32 in [0, 1]: the labeller's probability for the class each point carries (0 where unlabelled)
+    confidence: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
         n = len(self.points)
-        for name in ("colors", "intensity", "class_ids", "instance_ids", "normals"):
+        for name in ("colors", "intensity", "class_ids", "instance_ids", "normals", "confidence"):
             _check_len(name, getattr(self, name), n)
 
     def __len__(self) -> int:
@@ -176,6 +178,7 @@ class LabelledCloud:
             pick(self.class_ids),
             pick(self.instance_ids),
             pick(self.normals),
+            pick(self.confidence),
         )
 
 
@@ -262,3 +265,5 @@ class RunSummary:
     fragments: int = 0  # instances before those under the minimum object size were hidden (`instances` = shown)
     final_merges: int = 0  # instances merged by the end-of-run consolidation
     level_tilt_deg: float | None = None  # how far the first scan's z was from up (None: world not levelled)
+    # what the run warned of once (scans outside the networks' training data, pipeline.scan_stats)
+    warnings: list[str] = field(default_factory=list)

@@ -172,7 +172,8 @@ class VoxelMap:
 
     Per-row arrays (views of the first `len(map)` rows): `positions` (float64, 3), `colors` (uint8, 3),
     `normals` (float32, 3), `class_ids` (uint16, UNLABELLED until labelled), `instance_ids` (uint32, 0 = none),
-    `embeddings` (float32, D), `first_seq` (int32, the scan that opened the voxel), `scores` (float32),
+    `embeddings` (float32, D), `first_seq` (int32, the scan that opened the voxel), `scores` (float32, the
+    labeller's confidence in the class the voxel carries now: for MCPNet its softmax probability of that class),
     `keys` (int64 packed voxel coordinates) and, when the log has ground truth, `true_class_ids` and
     `true_instance_ids` of the stored point.
     """
@@ -389,6 +390,7 @@ class VoxelMap:
             self.class_ids.copy(),
             self.instance_ids.copy(),
             self.normals.copy(),
+            self.scores.copy(),
         )
 
     def truth_cloud(self) -> LabelledCloud:

@@ -1,7 +1,8 @@
 """File exports into one folder: the final labelled map, the trajectory in two common text formats, a summary.
 
 - `map.ply`: the final labelled map in the DESIGN.md PLY format (`x y z`, `red green blue` = class colour,
-  `class_id`, `instance_id`), through `pipeline.cloud_io.write_cloud`.
+  `class_id`, `instance_id`, and `confidence`: the labeller's probability for the class), through
+  `pipeline.cloud_io.write_cloud`.
 - `poses_tum.txt`: `timestamp tx ty tz qx qy qz qw` per scan (TUM RGB-D format, seconds since the epoch).
 - `poses_kitti.txt`: the first three rows of each 4 x 4 pose, row-major, 12 numbers per line (KITTI odometry).
 - `summary.json`: the `RunSummary` fields, the source, and per-class instance and point counts of the map.
@@ -9,23 +10,26 @@
 - `damage.json` (with `run --damage`): the damage report — cracks with length and width, stories with drift
   and tilt, and what could not be measured.
 
-Poses are the sensor poses at the scan stamps, written line by line as the scans are registered, so an
-interrupted run keeps every pose it computed; the map and summary are written at the end (also after Ctrl-C).
+Poses are the sensor poses at the scan stamps, written line by line as the scans are registered (into
+`poses_tum.txt.part`, renamed when the run ends), so an interrupted run keeps every pose it computed, and a killed
+one leaves them in the `.part` files; the map and summary are written at the end (also after Ctrl-C). The folder is
+locked while the run writes it (`pipeline.outputs.FolderLock`): a second run into it is refused naming the first.
 """
 
 from __future__ import annotations
 
 import json
 from contextlib import suppress
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Final, TextIO
 
 import numpy as np
 
 from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES, class_colors
-from aftershock.pipeline.cloud_io import check_output, write_atomically, write_cloud
+from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.outputs import FolderLock, StreamedOutput, check_output, write_atomically
 from aftershock.pipeline.pointcloud2 import matrix_to_quaternion
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
@@ -83,6 +87,7 @@ class FileExportSink(Sink):
         self.folder = Path(folder)
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError("exists and is not a folder", self.folder)
+        self._lock = FolderLock(self.folder).acquire()
         self.map_path = check_output(self.folder / MAP_FILE, force)
         self.tum_path = check_output(self.folder / TUM_FILE, force)
         self.kitti_path = check_output(self.folder / KITTI_FILE, force)
@@ -93,6 +98,8 @@ class FileExportSink(Sink):
         self._info: RunInfo | None = None
         self._tum: TextIO | None = None
         self._kitti: TextIO | None = None
+        self._tum_out = StreamedOutput(self.tum_path)
+        self._kitti_out = StreamedOutput(self.kitti_path)
         self._written: set[int] = set()
         self._poses_closed = False
         self._failed = False  # the disk refused a pose line: the map and summary are not attempted
@@ -133,9 +140,7 @@ class FileExportSink(Sink):
             return
         cloud = final_map
         if cloud.class_ids is not None and cloud.colors is None:
-            cloud = LabelledCloud(
-                cloud.points, class_colors(cloud.class_ids), cloud.intensity, cloud.class_ids, cloud.instance_ids
-            )
+            cloud = replace(cloud, colors=class_colors(cloud.class_ids), normals=None)
         # the path was checked at construction; class colours stand in for a colour the log did not have
         write_cloud(self.map_path, cloud, force=True, stand_in_color=final_map.colors is None)
         data = asdict(summary)
@@ -168,7 +173,10 @@ class FileExportSink(Sink):
         write_atomically(self.damage_path, lambda tmp: tmp.write_text(text))
 
     def close(self) -> None:
-        self._close_poses()
+        try:
+            self._close_poses()
+        finally:
+            self._lock.release()
 
     def _open_poses(self) -> bool:
         """Open the pose files once (in `begin`, or with the first pose); False once they were closed."""
@@ -176,16 +184,16 @@ class FileExportSink(Sink):
             return False
         if self._tum is None or self._kitti is None:
             try:
-                self._tum = open(self.tum_path, "w")  # noqa: SIM115 (kept open for the whole run)
-                self._kitti = open(self.kitti_path, "w")  # noqa: SIM115
+                self._tum = self._tum_out.open("w")
+                self._kitti = self._kitti_out.open("w")
             except OSError as exc:
                 raise OutputError(f"cannot write: {exc.strerror}", self.folder) from None
         return True
 
     def _close_poses(self) -> None:
-        for f in (self._tum, self._kitti):
+        for f, out in ((self._tum, self._tum_out), (self._kitti, self._kitti_out)):
             if f is not None:
                 with suppress(OSError):  # a write that failed before was reported; the lines before it are kept
-                    f.close()
+                    out.close()
                 self._poses_closed = True
         self._tum = self._kitti = None

@@ -21,8 +21,8 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from aftershock.pipeline.classes import UNLABELLED, class_colors
-from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.outputs import StreamedOutput, check_output
 from aftershock.pipeline.pointcloud2 import (
     encode_pointcloud2,
     pose_stamped_message,
@@ -77,6 +77,7 @@ class McapSink(Sink):
 
     def __init__(self, path: Path, force: bool = False) -> None:
         self.path = check_output(path, force)
+        self._out = StreamedOutput(self.path)  # written as NAME.part, renamed by `close`
         self._file: BinaryIO | None = None
         self._writer: Writer | None = None
         self._points = self._pose = 0
@@ -115,7 +116,7 @@ class McapSink(Sink):
                     self._writer.finish()
         finally:
             with suppress(OSError):  # the buffer could not be written out either: the write error was reported
-                self._file.close()
+                self._out.close()
             self._file = None
             self._writer = None
 
@@ -134,7 +135,7 @@ class McapSink(Sink):
         if self._writer is not None:
             return self._writer
         try:
-            self._file = open(self.path, "wb")  # noqa: SIM115 (kept open for the whole run)
+            self._file = self._out.open("wb")
         except OSError as exc:
             raise OutputError(f"cannot write: {exc.strerror}", self.path) from None
         writer = Writer(self._file, compression=CompressionType.ZSTD)

@@ -23,6 +23,7 @@ LRGNET_STEP_TIMELINE: Final = "lrgnet_step"
 
 WORLD: Final = "world"
 MAP: Final = "world/map"
+UNCERTAIN: Final = "world/uncertain"  # map voxels the labeller is unsure of, tiled as the map
 TRAJECTORY: Final = "world/trajectory"
 ROBOT: Final = "world/robot"
 RAW: Final = "world/robot/raw"

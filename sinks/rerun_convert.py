@@ -18,6 +18,8 @@ FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
 
 SCAN_RADIUS: Final = rr.Radius.ui_points(1.5)
 MAP_RADIUS_OF_VOXEL: Final = 0.2  # map points drawn with a world-space radius of this fraction of the voxel
+UNCERTAIN_RADIUS_OF_VOXEL: Final = 0.35  # uncertain voxels drawn larger than the map's, over them
+UNCERTAIN_COLOR: Final = (255, 0, 200)  # magenta: no class has it
 CRACK_RADIUS: Final = rr.Radius.ui_points(3.0)
 TRAJECTORY_COLOR: Final = (255, 210, 0)
 GROWTH_INLIER_COLOR: Final = (60, 220, 90)
@@ -120,13 +122,24 @@ def trajectory_strip(positions: list[np.ndarray]) -> rr.LineStrips3D:
     return rr.LineStrips3D([np.asarray(positions)], colors=TRAJECTORY_COLOR, radii=rr.Radius.ui_points(2.5))
 
 
+def _values(instance_ids: np.ndarray, confidence: np.ndarray | None) -> rr.AnyValues:
+    """`instance_id` and, where known, `confidence` (the labeller's probability for the class) per point."""
+    if confidence is None:
+        return rr.AnyValues(instance_id=instance_ids)
+    return rr.AnyValues(instance_id=instance_ids, confidence=confidence)
+
+
 def labelled_points(
-    points: np.ndarray, class_ids: np.ndarray, instance_ids: np.ndarray, radius: float
+    points: np.ndarray,
+    class_ids: np.ndarray,
+    instance_ids: np.ndarray,
+    radius: float,
+    confidence: np.ndarray | None = None,
 ) -> tuple[rr.Points3D, rr.AnyValues]:
-    """Points with their class (coloured by the annotation context) and an `instance_id` beside them."""
+    """Points with their class (coloured by the annotation context), `instance_id` and `confidence` beside them."""
     return (
         rr.Points3D(points.astype(np.float32), class_ids=class_ids, radii=radius),
-        rr.AnyValues(instance_id=instance_ids),
+        _values(instance_ids, confidence),
     )
 
 
@@ -139,18 +152,33 @@ def instance_points(points: np.ndarray, class_ids: np.ndarray, instance_ids: np.
 
 
 def map_tile(
-    points: np.ndarray, class_ids: np.ndarray | None, colors: np.ndarray | None, instance_ids: np.ndarray, radius: float
+    points: np.ndarray,
+    class_ids: np.ndarray | None,
+    colors: np.ndarray | None,
+    instance_ids: np.ndarray,
+    radius: float,
+    confidence: np.ndarray | None = None,
 ) -> tuple[rr.Points3D, rr.AnyValues]:
     """One map tile: by class, or by colour for a map without classes."""
     return (
         rr.Points3D(points.astype(np.float32), class_ids=class_ids, colors=colors, radii=radius),
-        rr.AnyValues(instance_id=instance_ids),
+        _values(instance_ids, confidence),
     )
 
 
-def tile_labels(class_ids: np.ndarray, instance_ids: np.ndarray) -> tuple[rr.Points3D, rr.AnyValues]:
+def tile_labels(
+    class_ids: np.ndarray, instance_ids: np.ndarray, confidence: np.ndarray | None = None
+) -> tuple[rr.Points3D, rr.AnyValues]:
     """Only the labels of a map tile whose points stayed."""
-    return rr.Points3D.from_fields(class_ids=class_ids), rr.AnyValues(instance_id=instance_ids)
+    return rr.Points3D.from_fields(class_ids=class_ids), _values(instance_ids, confidence)
+
+
+def uncertain_points(points: np.ndarray, confidence: np.ndarray, radius: float) -> tuple[rr.Points3D, rr.AnyValues]:
+    """Map voxels the labeller is unsure of, in one colour no class has, drawn over the map."""
+    return (
+        rr.Points3D(points.astype(np.float32), colors=UNCERTAIN_COLOR, radii=radius),
+        rr.AnyValues(confidence=confidence),
+    )
 
 
 def refined_points(cloud: LabelledCloud) -> list:

@@ -14,10 +14,12 @@ own clouds appear at the estimated pose, and the recording id carries the log's 
 (`recording_id_for`) so `aftershock view` can open both as one recording.
 
 Entities (`world/` is the site, z up, with the class table as a static annotation context)
-- `world/map/x{i}y{j}`: the accumulated labelled map (`class_ids`, `instance_id`), voxel-downsampled to
+- `world/map/x{i}y{j}`: the accumulated labelled map (`class_ids`, `instance_id`, `confidence`: the
+  labeller's probability for the class), voxel-downsampled to
   `cfg.map_voxel_m` and cut into square tiles of `cfg.map_tile_m`; at each map update (the stream sends one
   every `map_every` scans) only the tiles that changed are re-logged (only their labels when their points
-  stayed), so a long mission stays light in the file and fluid in the viewer.
+  stayed), so a long mission stays light in the file and fluid in the viewer. `world/uncertain/x{i}y{j}`: the
+  tile's voxels with a confidence under `cfg.uncertain_below`, drawn larger in magenta over the map.
 - `world/trajectory/p{k}`: the estimated trajectory as line strips of up to `TRAJECTORY_PIECE` poses; only the
   newest piece is re-logged per scan.
 - `world/robot`: the pose (Transform3D, world <- sensor); `world/robot/raw` the raw scan in the sensor frame,
@@ -32,7 +34,7 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
 - `world/damage/crack_points`, `world/damage/cracks` (boxes labelled with length and width),
   `world/damage/stories/s{i}` (story planes), `world/damage/drift` (drift arrows, exaggerated, labelled in mm).
 - `stats/time_ms/<stage>` and `stats/counts/<name>`: scalars per scan; `log/...`: merges, registration
-  warnings and the run summary as text log entries.
+  warnings, the run summary and its `warnings` (scans unlike the networks' training data) as text log entries.
 
 The sink keeps the hooks and the time bookkeeping: `rerun_convert` turns our types into Rerun archetypes,
 `rerun_tiles` decides which map tiles changed, `rerun_stats` batches the per-scan scalars, and
@@ -87,6 +89,7 @@ class RerunSink(Sink):
         self._trajectory: list[np.ndarray] = []
         self._piece = 0
         self._tiles = MapTiles(cfg.map_voxel_m, cfg.map_tile_m)
+        self._uncertain: set[str] = set()  # the uncertain-voxel tiles logged and not cleared
         self._embedding_colors = EmbeddingColors()
 
     @property
@@ -192,6 +195,8 @@ class RerunSink(Sink):
         if len(final_map):
             self._log_map(final_map)
         self.rec.log(f"{L.LOG}/summary", rr.TextLog(C.summary_text(summary), level="INFO"))
+        for warning in summary.warnings:  # what the run warned of once (scans unlike the training data)
+            self.rec.log(f"{L.LOG}/warnings", rr.TextLog(warning, level="WARN"))
 
     def close(self) -> None:
         if self.out.closed:
@@ -277,7 +282,10 @@ class RerunSink(Sink):
         one = frame.map_rows.first_points
         world = frame.world_points if frame.world_points is not None else np.zeros((len(frame.scan), 3))
         radius = C.MAP_RADIUS_OF_VOXEL * self.cfg.map_voxel_m * 1.5
-        self.rec.log(L.LABELS, *C.labelled_points(world[one], labels.class_ids[one], labels.instance_ids[one], radius))
+        conf = labels.scores[one] if labels.scores is not None else None
+        self.rec.log(
+            L.LABELS, *C.labelled_points(world[one], labels.class_ids[one], labels.instance_ids[one], radius, conf)
+        )
         self.merges(frame.merges, frame.seq)
 
     def _log_map(self, cloud: LabelledCloud) -> None:
@@ -289,11 +297,28 @@ class RerunSink(Sink):
         colors = update.colors
         for tile in update.changed:
             name, sel = f"{L.MAP}/{tile.name}", tile.sel
+            conf = update.confidence[sel] if update.confidence is not None else None
+            self._log_uncertain(tile.name, update.points[sel], conf)
             if tile.labels_only:
-                self.rec.log(name, *C.tile_labels(update.class_ids[sel], update.instance_ids[sel]))
+                self.rec.log(name, *C.tile_labels(update.class_ids[sel], update.instance_ids[sel], conf))
                 continue
             cls = update.class_ids[sel] if colors is None else None
             tile_colors = colors[sel] if colors is not None else None
-            self.rec.log(name, *C.map_tile(update.points[sel], cls, tile_colors, update.instance_ids[sel], radius))
+            self.rec.log(
+                name, *C.map_tile(update.points[sel], cls, tile_colors, update.instance_ids[sel], radius, conf)
+            )
         for gone in update.gone:
             self.rec.log(f"{L.MAP}/{gone}", rr.Clear(recursive=False))
+            self._log_uncertain(gone, np.zeros((0, 3)), None)
+
+    def _log_uncertain(self, tile: str, points: np.ndarray, confidence: np.ndarray | None) -> None:
+        """The tile's voxels under `cfg.uncertain_below`, over the map in one colour (cleared when none is left)."""
+        name = f"{L.UNCERTAIN}/{tile}"
+        low = np.zeros(len(points), bool) if confidence is None else confidence < self.cfg.uncertain_below
+        if confidence is not None and low.any():
+            self._uncertain.add(name)
+            radius = C.UNCERTAIN_RADIUS_OF_VOXEL * self.cfg.map_voxel_m
+            self.rec.log(name, *C.uncertain_points(points[low], confidence[low], radius))
+        elif name in self._uncertain:
+            self._uncertain.discard(name)
+            self.rec.log(name, rr.Clear(recursive=False))

@@ -52,6 +52,7 @@ class TileUpdate:
     class_ids: np.ndarray  # (M,) uint16 (UNLABELLED where the cloud has none)
     instance_ids: np.ndarray  # (M,) uint32
     colors: np.ndarray | None  # (M, 3) uint8: only for a cloud without classes (drawn by colour then)
+    confidence: np.ndarray | None  # (M,) float32, the labeller's probability for the class (None: not known)
     changed: list[TileChange] = field(default_factory=list)
     gone: list[str] = field(default_factory=list)  # tiles that emptied
 
@@ -75,8 +76,9 @@ class MapTiles:
         cls = cloud.class_ids[keep] if cloud.class_ids is not None else np.full(n, UNLABELLED, np.uint16)
         inst = cloud.instance_ids[keep] if cloud.instance_ids is not None else np.zeros(n, np.uint32)
         colors = cloud.colors[keep] if cloud.class_ids is None and cloud.colors is not None else None
+        conf = cloud.confidence[keep] if cloud.confidence is not None else None
         self.bounds = (pts.min(axis=0), pts.max(axis=0))
-        out = TileUpdate(pts, cls, inst, colors)
+        out = TileUpdate(pts, cls, inst, colors, conf)
 
         cell = np.floor(pts[:, :2] / self.tile_m).astype(np.int64)
         packed = (cell[:, 0] << 32) + cell[:, 1]  # one sortable key per tile (tile indices stay far below 2^31)
@@ -88,6 +90,9 @@ class MapTiles:
         zeros = np.zeros(n, np.uint16)
         where_hash = np.add.reduceat(content_hash(pts, zeros, zeros.astype(np.uint32))[order], starts)
         label_hash = np.add.reduceat(content_hash(pts, cls, inst)[order], starts)
+        if conf is not None:  # a confidence that moved by a percent is a change of the tile's labels
+            percent = np.round(conf * 100).astype(np.uint16)
+            label_hash += np.add.reduceat(content_hash(pts, percent, zeros.astype(np.uint32))[order], starts)
         seen: set[str] = set()
         for t, (ix, iy) in enumerate(tiles):
             name = tile_name(int(ix), int(iy))

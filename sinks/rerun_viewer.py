@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
-from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.errors import InputError, OutputError
 
 LOCALHOST: Final = "127.0.0.1"
 START_TIMEOUT_S: Final = 30.0
@@ -35,9 +35,35 @@ def rerun_command() -> str:
 
 
 def free_port(host: str = LOCALHOST) -> int:
-    with socket.socket() as s:
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])
+
+
+def check_bind(bind: str) -> None:
+    """InputError unless `bind` is an address of this machine (or every interface, 0.0.0.0 / ::)."""
+    try:
+        infos = socket.getaddrinfo(bind, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError, ValueError) as exc:
+        raise InputError(f"--bind {bind}: not an address ({getattr(exc, 'strerror', None) or exc})") from None
+    reason = "no address"
+    for family, kind, proto, _, addr in infos:
+        try:
+            with socket.socket(family, kind, proto) as s:
+                s.bind((addr[0], 0))
+                return
+        except OSError as exc:
+            reason = exc.strerror or str(exc)
+    raise InputError(f"--bind {bind}: not an address of this machine ({reason})")
+
+
+def _can_bind(bind: str, port: int) -> bool:
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in bind else socket.AF_INET) as s:
+            s.bind((bind, port))
+            return True
+    except OSError:
+        return False
 
 
 def listening(host: str, port: int, timeout_s: float = 0.5) -> bool:
@@ -60,11 +86,17 @@ class Viewer:
 def start_viewer(*, web: bool = False, bind: str = LOCALHOST, port: int | None = None) -> Viewer:
     """Start a native viewer (detached: it outlives this process) or a web viewer server (a child that
     ends with this process), listening on `bind`; reuse a native viewer already listening on `port`."""
+    check_bind(bind)
     connect_host = LOCALHOST if bind in ("0.0.0.0", "::") else bind
+    if port is not None and not 1 <= port <= 65535:
+        raise InputError(f"--port {port}: a port is between 1 and 65535")
     grpc_port = port or free_port(LOCALHOST if connect_host == LOCALHOST else bind)
     grpc_url = f"rerun+http://{connect_host}:{grpc_port}/proxy"
     if not web and listening(connect_host, grpc_port):
         return Viewer(None, grpc_url)
+    if port is not None and (listening(connect_host, grpc_port) or not _can_bind(bind, grpc_port)):
+        # a web page pointed at it would show whatever else listens there: someone else's viewer or data
+        raise InputError(f"--port {grpc_port}: the port is taken on {bind}; choose another or leave --port out")
     cmd = [rerun_command(), "--bind", bind, "--port", str(grpc_port), "--memory-limit", VIEWER_MEMORY]
     web_url = None
     if web:

@@ -50,8 +50,12 @@ def kind_of(path_or_uri: str | Path) -> SourceKind:
     if is_glob(text) and not Path(text).exists():
         return SourceKind.FILES
     path = Path(text)
-    if not path.exists():
-        raise InputError("no such file or directory", path)
+    try:
+        path.stat()
+    except FileNotFoundError:
+        raise InputError("no such file or directory", path) from None
+    except OSError as exc:  # a name over 255 bytes, a folder on the way that may not be entered
+        raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
     if path.is_dir():
         from aftershock.sources.bag import is_ros2_bag
 

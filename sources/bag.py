@@ -42,6 +42,9 @@ def _reader(path: Path) -> Any:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
+    from aftershock.sources.inflate import bound_rosbags
+
+    bound_rosbags()
     return AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
 
 
@@ -57,6 +60,12 @@ def _errors() -> tuple[type[BaseException], ...]:
     except ImportError:  # pragma: no cover
         pass
     return tuple(errs)
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception as `Type: its first line` (a YAML parser's message spans several, with a caret drawing)."""
+    text = str(exc).strip().splitlines()[0].rstrip(":") if str(exc).strip() else ""
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 @dataclass(slots=True)
@@ -86,7 +95,7 @@ def read_catalog(path: Path) -> BagCatalog:
             if reader.message_count:
                 cat.start_ns, cat.end_ns = int(reader.start_time), int(reader.end_time)
     except _errors() as exc:
-        raise InputError(f"cannot open the ROS bag ({type(exc).__name__}: {exc})", path) from None
+        raise InputError(f"cannot open the ROS bag ({_first_line(exc)})", path) from None
     return cat
 
 
@@ -106,7 +115,7 @@ def events(
                 else:
                     yield pose_event(int(log_time), conn.topic, partial(_pose, reader, raw, conn.msgtype))
     except errors as exc:
-        yield Damage(f"the bag is cut off or damaged ({type(exc).__name__}: {exc})")
+        yield Damage(f"the bag is cut off or damaged ({_first_line(exc)})")
 
 
 def _pose(reader: Any, raw: bytes, msgtype: str) -> tuple[int, np.ndarray]:

@@ -76,6 +76,24 @@ class Skipped:
 
 Event = CloudMessage | PoseMessage | Damage | Skipped
 
+# Log times are unsigned 64-bit in MCAP and ROS 2 bags; everything downstream (numpy, Rerun, the MCAP sink) holds
+# them as signed 64-bit nanoseconds, so a time at or past 2**63 (the year 2262) is a damaged record, not a time.
+TIME_LIMIT_NS: Final[int] = 1 << 63
+
+
+def time_in_range(ns: int | None) -> bool:
+    return ns is None or 0 <= ns < TIME_LIMIT_NS
+
+
+def bad_time(ev: Event) -> Skipped | None:
+    """`Skipped` for a cloud or pose message whose log time no signed 64-bit clock can hold, else None."""
+    if isinstance(ev, CloudMessage | PoseMessage) and not time_in_range(ev.log_time_ns):
+        topic = ev.topic if isinstance(ev, CloudMessage) else "pose"
+        return Skipped(ev.log_time_ns, topic, f"its log time {ev.log_time_ns} ns is past 2**63 ns (the year 2262)")
+    if isinstance(ev, PoseMessage) and not time_in_range(ev.stamp_ns):
+        return Skipped(ev.log_time_ns, "pose", f"its stamp {ev.stamp_ns} ns is past 2**63 ns (the year 2262)")
+    return None
+
 
 def pose_event(log_time_ns: int, topic: str, decode: Callable[[], tuple[int, np.ndarray]]) -> PoseMessage | Skipped:
     """A pose message, or `Skipped` when it cannot be decoded or is no rigid pose (a zero or NaN quaternion)."""
@@ -83,6 +101,8 @@ def pose_event(log_time_ns: int, topic: str, decode: Callable[[], tuple[int, np.
         stamp_ns, matrix = decode()
     except Exception as exc:  # any decoder failure on one message: the log goes on
         return Skipped(log_time_ns, topic, _reason(exc))
+    if not time_in_range(log_time_ns):
+        return Skipped(log_time_ns, topic, f"its log time {log_time_ns} ns is past 2**63 ns (the year 2262)")
     return PoseMessage(log_time_ns, stamp_ns or log_time_ns, matrix)
 
 
@@ -247,6 +267,8 @@ def assemble(
             if isinstance(ev, Damage):
                 damage = report.damage = ev.reason
                 break
+            if not isinstance(ev, Skipped | Damage):
+                ev = bad_time(ev) or ev
             if isinstance(ev, Skipped):
                 _skip(report, path, ev)
                 continue
@@ -308,7 +330,8 @@ def _decode(ev: CloudMessage, path: str | Path, first: bool = False) -> Scan | N
         cloud = ev.decode()
         return columns_to_scan(
             cloud.columns,
-            stamp_ns=cloud.stamp_ns or ev.log_time_ns,
+            # a header stamp no signed 64-bit clock holds (a negative ROS 2 second) is no stamp: the log time stands
+            stamp_ns=cloud.stamp_ns if cloud.stamp_ns and time_in_range(cloud.stamp_ns) else ev.log_time_ns,
             frame_id=cloud.frame_id,
             topic=ev.topic,
             log_time_ns=ev.log_time_ns,

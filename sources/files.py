@@ -10,6 +10,7 @@ import glob
 import os
 import re
 import struct
+import warnings
 from collections.abc import Iterator
 from functools import partial
 from pathlib import Path
@@ -17,7 +18,8 @@ from typing import Final
 
 import numpy as np
 
-from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.errors import DamagedLogWarning, InputError
+from aftershock.pipeline.limits import block_cap_bytes
 from aftershock.pipeline.types import Scan, SourceReport
 from aftershock.sources.common import CloudMessage, DecodedCloud, Event, assemble, check_window, window_ns
 
@@ -50,7 +52,7 @@ def _natural_key(p: Path) -> list[int | str]:
 def list_files(path_or_glob: str | Path) -> list[Path]:
     """The readable point-cloud files of a folder, a glob or a single file, in (natural) name order."""
     text = str(path_or_glob)
-    if is_glob(text):
+    if is_glob(text) and not Path(text).exists():  # a real folder named `run[1]` is that folder, not a pattern
         found = [Path(p) for p in glob.glob(text) if Path(p).is_file()]
     else:
         p = Path(text)
@@ -149,7 +151,15 @@ def read_pcd(path: Path) -> dict[str, np.ndarray]:
     cols: dict[str, np.ndarray] = {}
     try:
         if kind == "ascii":
-            table = np.loadtxt(body.decode("ascii").splitlines(), dtype=np.float64, ndmin=2)[:n]
+            table = np.loadtxt(body.decode("ascii").splitlines(), dtype=np.float64, ndmin=2)
+            if len(table) < n:
+                raise InputError(f"PCD declares {n} points but its ascii data holds {len(table)} rows", path)
+            if len(table) > n:
+                warnings.warn(
+                    DamagedLogWarning(f"{path}: PCD declares {n} points but holds {len(table)} rows; read {n}"),
+                    stacklevel=2,
+                )
+            table = table[:n]
             start = 0
             for name, base, c in zip(names, bases, counts, strict=True):
                 if name != "_":
@@ -199,6 +209,8 @@ def _check_pcd_sizes(kind: str, body: bytes, n: int, point_bytes: int, path: Pat
         raise InputError(f"PCD declares {packed} compressed bytes but holds {len(body) - 8}", path)
     if size > packed * _LZF_MAX_RATIO + 64:
         raise InputError(f"PCD claims {size} bytes from {packed} compressed ones, more than LZF can give", path)
+    if size > (cap := block_cap_bytes()):
+        raise InputError(f"PCD claims {size} uncompressed bytes, more than the {cap} one file may take here", path)
 
 
 # --------------------------------------------------------------------------------------------- PLY, KITTI

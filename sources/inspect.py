@@ -32,6 +32,7 @@ from aftershock.sources.common import (
     DecodedCloud,
     Event,
     Skipped,
+    bad_time,
     choose_topic,
 )
 
@@ -104,7 +105,9 @@ def _valid_count(cols: dict[str, np.ndarray]) -> int | None:
     lower = {k.lower(): k for k in cols}
     if not all(a in lower for a in ("x", "y", "z")):
         return None
-    xyz = np.stack([cols[lower[a]].reshape(len(cols[lower[a]]), -1)[:, 0] for a in ("x", "y", "z")], axis=1)
+    # a column of several values per point (COUNT > 1) counts by its first; an empty cloud has no shape to infer
+    firsts = [cols[lower[a]] if cols[lower[a]].ndim == 1 else cols[lower[a]][:, 0] for a in ("x", "y", "z")]
+    xyz = np.stack(firsts, axis=1)
     return int(valid_mask(xyz).sum())
 
 
@@ -120,7 +123,9 @@ def summarise_clouds(
             if isinstance(ev, Damage):
                 damage = ev.reason
                 break
-            if isinstance(ev, Skipped):  # a corrupt chunk: what it held is not counted
+            if not isinstance(ev, Skipped | Damage):
+                ev = bad_time(ev) or ev
+            if isinstance(ev, Skipped):  # a corrupt chunk or an impossible time: what it held is not counted
                 warnings.warn(DamagedLogWarning(f"{path or name}: {ev.reason}"), stacklevel=2)
                 continue
             if not isinstance(ev, CloudMessage):

@@ -7,9 +7,11 @@ stream up to the damage: every complete message before it is used, then a `Damag
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import heapq
 import struct
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import partial
@@ -20,11 +22,13 @@ import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.decoder import DecoderFactory as McapDecoderFactory
 from mcap.exceptions import EndOfFile, McapError
+from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
-from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.errors import DamagedLogWarning, InputError
+from aftershock.pipeline.limits import block_cap_bytes
 from aftershock.pipeline.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 from aftershock.pipeline.progress import bar
 from aftershock.pipeline.types import Scan, SourceReport
@@ -42,9 +46,11 @@ from aftershock.sources.common import (
     window_ns,
 )
 from aftershock.sources.foxglove import decode_foxglove_pointcloud
+from aftershock.sources.inflate import BlockTooLarge, inflate
 
 MCAP_MAGIC: Final[bytes] = b"\x89MCAP0\r\n"
 _RECORD_LIMIT: Final[int] = 1 << 30  # a record larger than 1 GiB in a LiDAR log means a corrupt length
+_CHUNK_FIXED: Final[int] = 8 + 8 + 8 + 4 + 4  # start, end, uncompressed size, crc, compression name length
 
 
 def _damage_errors() -> tuple[type[BaseException], ...]:
@@ -66,7 +72,7 @@ def _damage_errors() -> tuple[type[BaseException], ...]:
 
 
 DAMAGE_ERRORS: Final[tuple[type[BaseException], ...]] = _damage_errors()
-CHUNK_ERRORS: Final[tuple[type[BaseException], ...]] = (CRCValidationError, *DAMAGE_ERRORS)
+CHUNK_ERRORS: Final[tuple[type[BaseException], ...]] = (CRCValidationError, MemoryError, *DAMAGE_ERRORS)
 
 
 def damage_reason(exc: BaseException, where: int, size: int | None = None) -> str:
@@ -76,6 +82,11 @@ def damage_reason(exc: BaseException, where: int, size: int | None = None) -> st
         return f"the log is cut off at byte {where}{of} (it ends inside a record)"
     detail = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     return f"the log is damaged near byte {where}{of} ({type(exc).__name__}{': ' + detail if detail else ''})"
+
+
+def _record_limit() -> int:
+    """The largest record read whole when a file is read through (a chunk's compressed bytes)."""
+    return min(_RECORD_LIMIT, block_cap_bytes())
 
 
 def is_mcap(path: Path) -> bool:
@@ -129,6 +140,7 @@ class McapCatalog:
     indexed: bool = False
     damage: str | None = None
     profile: str = ""
+    damage_note: str | None = None  # a damaged index, read past by reading the file through
 
     @property
     def types(self) -> dict[str, str]:
@@ -172,7 +184,11 @@ def read_catalog(path: Path, progress: bool = False) -> McapCatalog:
                 cat.profile = SeekingReader(fh, record_size_limit=_RECORD_LIMIT).get_header().profile
             except DAMAGE_ERRORS:
                 summary = None
-        if summary is not None and summary.statistics is not None and summary.chunk_indexes:
+        bad_index = _bad_chunk_index(fh, summary.chunk_indexes) if summary is not None else None
+        if bad_index is not None:  # offsets that lead nowhere: every intact chunk is found by reading the file through
+            warnings.warn(DamagedLogWarning(f"{path}: {bad_index}; reading the file record by record"), stacklevel=2)
+            cat.damage_note = bad_index
+        elif summary is not None and summary.statistics is not None and summary.chunk_indexes:
             cat.indexed = True
             counts = summary.statistics.channel_message_counts
             for cid, channel in summary.channels.items():
@@ -186,6 +202,24 @@ def read_catalog(path: Path, progress: bool = False) -> McapCatalog:
     return cat
 
 
+def _bad_chunk_index(fh: IO[bytes], indexes: list[ChunkIndex]) -> str | None:
+    """Why the summary's chunk index cannot be trusted (an entry that does not lead to a chunk record of its
+    length inside the file), or None: a few bytes read per chunk."""
+    size = fh.seek(0, 2)
+    try:
+        for ci in indexes:
+            end = ci.chunk_start_offset + ci.chunk_length
+            if ci.chunk_start_offset < len(MCAP_MAGIC) or ci.chunk_length < 9 + _CHUNK_FIXED or end > size:
+                return f"the chunk index points at bytes {ci.chunk_start_offset}..{end} of {size}, where no chunk is"
+            fh.seek(ci.chunk_start_offset)
+            head = fh.read(9)
+            if len(head) < 9 or head[0] != Opcode.CHUNK or struct.unpack_from("<Q", head, 1)[0] != ci.chunk_length - 9:
+                return f"the chunk index points at byte {ci.chunk_start_offset}, where no chunk of its length starts"
+    finally:
+        fh.seek(0)
+    return None
+
+
 def _scan_stream(fh: IO[bytes], cat: McapCatalog, progress: bool) -> None:
     """Fill a catalog by reading every record up to the end or the damage (corrupt chunks are passed over)."""
     schemas: dict[int, Schema] = {}
@@ -196,7 +230,7 @@ def _scan_stream(fh: IO[bytes], cat: McapCatalog, progress: bool) -> None:
     try:
         with bar(size, desc=f"{cat.path.name} (no index)", unit="B", show=progress) as pbar:
             last = 0
-            reader = StreamReader(fh, skip_magic=False, emit_chunks=True, record_size_limit=_RECORD_LIMIT)
+            reader = StreamReader(fh, skip_magic=False, emit_chunks=True, record_size_limit=_record_limit())
             for outer in reader.records:
                 try:
                     inner = _chunk_records(outer, fh.tell()) if isinstance(outer, Chunk) else [outer]
@@ -270,7 +304,8 @@ class _BadChunk(Exception):
     """A chunk whose bytes do not decompress or do not match their CRC; `where` is its file offset."""
 
     def __init__(self, where: int, start_ns: int, exc: BaseException) -> None:
-        super().__init__(f"the chunk at byte {where} is corrupt ({_reason(exc)}); its messages are skipped")
+        what = f"is refused: {exc}" if isinstance(exc, BlockTooLarge) else f"is corrupt ({_reason(exc)})"
+        super().__init__(f"the chunk at byte {where} {what}; its messages are skipped")
         self.start_ns = start_ns
 
 
@@ -282,9 +317,28 @@ def _reason(exc: BaseException) -> str:
 def _chunk_records(chunk: Chunk, where: int) -> list[Any]:
     """The records of a chunk, its CRC checked (a writer that left it 0 chose not to have one)."""
     try:
-        return breakup_chunk(chunk, validate_crc=True)
+        data = inflate(chunk.data, chunk.compression, chunk.uncompressed_size if chunk.compression else None)
+        plain = dataclasses.replace(chunk, compression="", data=data)
+        return breakup_chunk(plain, validate_crc=True)
     except CHUNK_ERRORS as exc:
         raise _BadChunk(where, chunk.message_start_time, exc) from None
+
+
+def _read_chunk(fh: IO[bytes], ci: ChunkIndex) -> Chunk:
+    """The chunk record an index entry points at (checked by `_bad_chunk_index`), its data no longer than the
+    record: a compressed length claiming terabytes reads nothing."""
+    fh.seek(ci.chunk_start_offset + 1 + 8)
+    stream = ReadDataStream(fh)
+    start, end, size, crc, name_length = struct.unpack("<QQQII", stream.read(_CHUNK_FIXED))
+    room = ci.chunk_length - 9 - _CHUNK_FIXED
+    if name_length > room - 8:
+        raise ValueError(f"a compression name of {name_length} bytes")
+    compression = stream.read(name_length).decode("utf-8", "replace")
+    data_length = stream.read8()
+    if data_length > room - name_length - 8:
+        raise ValueError(f"{data_length} data bytes in a record of {ci.chunk_length}")
+    data = stream.read(data_length) if data_length else b""
+    return Chunk(compression, data, end, start, crc, size)
 
 
 _Item = tuple[Schema | None, Channel, Message] | _BadChunk
@@ -303,7 +357,7 @@ def _stream_messages(fh: IO[bytes], topics: set[str], lo: int | None, hi: int | 
             return None
         return channel
 
-    reader = StreamReader(fh, skip_magic=False, emit_chunks=True, record_size_limit=_RECORD_LIMIT)
+    reader = StreamReader(fh, skip_magic=False, emit_chunks=True, record_size_limit=_record_limit())
     for record in reader.records:
         if isinstance(record, Chunk):
             try:
@@ -340,12 +394,13 @@ def _indexed_messages(fh: IO[bytes], topics: set[str], lo: int | None, hi: int |
         if index >= 0:
             yield item
             continue
-        fh.seek(offset + 1 + 8)
-        chunk = Chunk.read(ReadDataStream(fh))
         try:
-            records = _chunk_records(chunk, offset)
+            records = _chunk_records(_read_chunk(fh, item), offset)
         except _BadChunk as bad:
             yield bad
+            continue
+        except DAMAGE_ERRORS as exc:
+            yield _BadChunk(offset, item.message_start_time, exc)
             continue
         for k, rec in enumerate(records):
             if not isinstance(rec, Message) or rec.channel_id not in wanted_ids:

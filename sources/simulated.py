@@ -161,6 +161,9 @@ def parse_sim_uri(uri: str) -> SimSpec:
     return spec
 
 
+SEED_MAX = 2**32 - 1
+
+
 def check_spec(spec: SimSpec, where: str) -> None:
     from aftershock.sources.simulator.generators import check_generator
     from aftershock.sources.simulator.looks import check_palette
@@ -185,10 +188,12 @@ def check_spec(spec: SimSpec, where: str) -> None:
         raise InputError("turn must be between 5 and 360 degrees per second", where)
     if spec.sway_deg is not None and not 0.0 <= spec.sway_deg <= 10.0:
         raise InputError("sway must be between 0 and 10 degrees", where)
+    if not 0 <= spec.seed <= SEED_MAX:
+        raise InputError(f"seed must be between 0 and {SEED_MAX} (numpy and torch take 32-bit seeds)", where)
     if spec.scans is not None and spec.scans < 0:
         raise InputError("scans cannot be negative", where)
-    if spec.duration_s is not None and not spec.duration_s >= 0:
-        raise InputError("duration cannot be negative", where)
+    if spec.duration_s is not None and not 0 <= spec.duration_s < float("inf"):
+        raise InputError("duration must be a number of seconds, not negative", where)
     if spec.speed is not None and not 0.05 <= spec.speed <= 5.0:
         raise InputError("speed must be between 0.05 and 5 m/s", where)
     if spec.spacing_m is not None and not 0.01 <= spec.spacing_m <= 100.0:
@@ -285,13 +290,13 @@ def open_simulated(uri: str, **options: Any) -> Iterator[Scan]:
     if spec.scans is not None or spec.duration_s is not None:
         last = len(mission)
     elif end_s is not None:
-        last = mission.count_before(float(end_s) + 1e-9)
+        last = mission.count_before(float(end_s) + 1e-9, "--end")
     elif max_scans is not None:
         last = first + int(max_scans) * every
     else:
         last = DEFAULT_SCANS
     if end_s is not None:
-        last = min(last, mission.count_before(float(end_s) + 1e-9))
+        last = min(last, mission.count_before(float(end_s) + 1e-9, "--end"))
     keep = range(first, last, every)
     if max_scans is not None:
         keep = keep[: int(max_scans)]

@@ -178,7 +178,8 @@ def test_crackembed_is_independent_of_batch_mates() -> None:
     assert torch.allclose(together.norm(dim=1), torch.ones(8), atol=1e-5)
 
 
-@pytest.mark.parametrize("detector", [d for d in Detector if d != Detector.RIDGE])  # ridge: test_cracks_ridge.py
+# ridge and region work on orthoimages: test_cracks_ridge.py, test_cracks_region.py
+@pytest.mark.parametrize("detector", [d for d in Detector if d not in (Detector.RIDGE, Detector.REGION)])
 def test_every_detector_flags_planted_outliers(detector: Detector) -> None:
     """Anomaly detectors find scattered outliers; the clustering baselines find a small separate cluster."""
     rng = np.random.default_rng(0)

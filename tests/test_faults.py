@@ -279,7 +279,7 @@ def _start_run(log: Path, tmp_path: Path) -> tuple[subprocess.Popen, Path]:
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, preexec_fn=interruptible
     )
     deadline = time.monotonic() + 60
-    poses = tmp_path / "exp" / "poses_tum.txt"
+    poses = tmp_path / "exp" / "poses_tum.txt.part"  # streamed beside its name until the run ends
     while time.monotonic() < deadline and not (poses.exists() and len(poses.read_text().splitlines()) >= 5):
         time.sleep(0.05)
     return proc, out
@@ -308,16 +308,18 @@ def test_sigterm_stops_like_ctrl_c_with_every_output_finished(sig, code, long_lo
 
 
 def test_sigkill_loses_only_the_scan_in_flight(long_log: Path, tmp_path: Path) -> None:
-    """SIGKILL cannot be caught: the pose files are flushed with each scan, the MCAP reads up to the cut."""
+    """SIGKILL cannot be caught: the pose files are flushed with each scan, the MCAP reads up to the cut; both
+    are left under their `.part` names (renamed only when a run ends), so nothing looks finished that is not."""
     proc, out = _start_run(long_log, tmp_path)
     time.sleep(3.0)  # Rerun batches a second of layers before writing them: a kill loses at most that
     proc.kill()
     proc.communicate(timeout=30)
-    tum = (tmp_path / "exp" / "poses_tum.txt").read_text().splitlines()
-    kitti = (tmp_path / "exp" / "poses_kitti.txt").read_text().splitlines()
+    assert not (tmp_path / "exp" / "poses_tum.txt").exists() and not (tmp_path / "o.mcap").exists()
+    tum = (tmp_path / "exp" / "poses_tum.txt.part").read_text().splitlines()
+    kitti = (tmp_path / "exp" / "poses_kitti.txt.part").read_text().splitlines()
     assert len(tum) >= 5 and abs(len(tum) - len(kitti)) <= 1
     assert all(len(line.split()) == 8 for line in tum)
-    info = cli_proc(["info", str(tmp_path / "o.mcap"), "--json"])
+    info = cli_proc(["info", str(tmp_path / "o.mcap.part"), "--json"])
     assert info.returncode == 0, info.stderr
     written = json.loads(info.stdout)["point_clouds"][0]["scans"]
     # MCAP chunks of a few scans are buffered; the poses lag the scans by at most the one in flight

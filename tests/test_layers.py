@@ -1,7 +1,7 @@
 """The package's shape: every folder with code is installed under `aftershock`, and imports go one way.
 
 Layers, bottom to top (a module imports only from layers below it, or from its own component):
-0. vocabulary: types, config, errors, classes, geometry, progress, cloud_io, the ROS codec, metrics
+0. vocabulary: types, config, errors, classes, geometry, progress, cloud_io, the ROS codec, metrics, planecheck
 1. models: the networks (not their training pipelines)
 2. components: sources; the stages (register, level, voxel_map, label, labellers, cluster, refine, damage, trajectory)
 3. the stream and the sink interface it owns
@@ -29,11 +29,23 @@ NAMESPACE: Final = "aftershock"
 
 VOCABULARY: Final = (
     *(f"pipeline.{m}" for m in ("types", "config", "errors", "classes", "geometry", "progress", "cloud_io")),
-    *("pipeline.pointcloud2", "pipeline.metrics", "pipeline", "recordings"),
+    *(f"pipeline.{m}" for m in ("text", "limits", "outputs")),
+    *("pipeline.pointcloud2", "pipeline.metrics", "pipeline.planecheck", "pipeline", "recordings"),
 )
 STAGES: Final = tuple(
     f"pipeline.{m}"
-    for m in ("register", "level", "voxel_map", "label", "labellers", "cluster", "refine", "damage", "trajectory")
+    for m in (
+        "register",
+        "level",
+        "voxel_map",
+        "label",
+        "labellers",
+        "cluster",
+        "refine",
+        "damage",
+        "trajectory",
+        "scan_stats",
+    )
 )
 
 

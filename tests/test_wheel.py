@@ -23,7 +23,11 @@ from aftershock.pipeline.types import LabelledCloud
 
 REPO: Final = Path(__file__).resolve().parents[1]
 PACKAGE_FOLDERS: Final = {"pipeline": "pipeline", "sources": "sources", "sinks": "sinks", "models": "models"}
-SHIPPED: Final = ("aftershock/recordings/sample.mcap", "aftershock/models/weights/mcpnet.pt")
+SHIPPED: Final = (
+    "aftershock/recordings/sample.mcap",
+    "aftershock/models/weights/mcpnet.pt",
+    "aftershock/models/weights/scan_reference.json",  # the distribution check of every run reads it
+)
 
 
 def _source_tree(dest: Path) -> Path:
@@ -103,7 +107,7 @@ def test_wheel_holds_every_module_and_the_shipped_data(built: tuple[Path, Path])
     tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert tops == {"aftershock"}, f"the wheel installs more than the aftershock namespace: {tops}"
     entry_points = next(n for n in names if n.endswith(".dist-info/entry_points.txt"))
-    assert "aftershock = aftershock.pipeline.cli:entry" in zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "aftershock = aftershock.pipeline.__main__:entry" in zipfile.ZipFile(wheel).read(entry_points).decode()
 
 
 def test_sdist_holds_every_module_and_the_shipped_data(built: tuple[Path, Path]) -> None:

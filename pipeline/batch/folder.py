@@ -57,10 +57,14 @@ def prepare_output(out: Path, fingerprint: str, settings: dict[str, Any], force:
             raise OutputError(
                 "holds files that are not a batch's results; pass --force to write into it anyway", out
             ) from None
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             raise OutputError(f"unreadable {MANIFEST_FILE} ({exc}); pass --force to replace it", out) from None
+        if not isinstance(old, dict):
+            raise OutputError(f"{MANIFEST_FILE} is not a batch manifest; pass --force to replace it", out)
         if old.get("config_hash") != fingerprint:
-            changed = ", ".join(_differences(old.get("settings", {}), settings)[:6]) or "unknown settings"
+            old_settings = old.get("settings")
+            old_settings = old_settings if isinstance(old_settings, dict) else {}
+            changed = ", ".join(_differences(old_settings, settings)[:6]) or "unknown settings"
             raise OutputError(
                 f"holds results of another configuration (differs in {changed}); "
                 "pass --force to replace them, or choose another --out",
@@ -101,14 +105,43 @@ def completed_row(folder: Path, source: str, fingerprint: str) -> dict[str, Any]
     present), or None when it has to be (re)done."""
     try:
         marker = json.loads((folder / MARKER_FILE).read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
-    row = marker.get("row", {})
+    row = marker.get("row", {}) if isinstance(marker, dict) else None  # a file edited by hand: `[]`, "x" ...
+    if not isinstance(row, dict) or not _row_types_fit(row):
+        return None
     if marker.get("config_hash") != fingerprint or row.get("source") != source or row.get("status") != STATUS_OK:
         return None
     if not all((folder / Path(row[c]).name).is_file() for c in OUTPUT_COLUMNS if row.get(c)):
         return None
     return row
+
+
+def _row_types_fit(row: dict[str, Any]) -> bool:
+    """Whether every value of a marker's row has its index column's type (a string where a number belongs, from
+    a hand edit, would break the index): a row that does not is redone, not trusted."""
+    import pyarrow as pa
+
+    from aftershock.pipeline.batch.site_index import COLUMNS
+
+    kinds = {name: kind for name, kind, _ in COLUMNS}
+    for name, value in row.items():
+        kind = kinds.get(name)
+        if kind is None or value is None:
+            continue
+        if pa.types.is_string(kind):
+            ok = isinstance(value, str)
+        elif pa.types.is_boolean(kind):
+            ok = isinstance(value, bool)
+        elif pa.types.is_integer(kind):
+            ok = isinstance(value, int) and not isinstance(value, bool) and -(2**63) <= value < 2**63
+        elif pa.types.is_floating(kind):
+            ok = isinstance(value, int | float) and not isinstance(value, bool)
+        else:
+            ok = True
+        if not ok:
+            return False
+    return all(isinstance(row.get(c), str | None) for c in OUTPUT_COLUMNS)
 
 
 def taken_names(out: Path) -> dict[str, str]:
@@ -118,9 +151,11 @@ def taken_names(out: Path) -> dict[str, str]:
         return names
     for marker in out.glob(f"*/{MARKER_FILE}"):
         try:
-            names[marker.parent.name] = json.loads(marker.read_text())["row"]["source"]
-        except (OSError, ValueError, KeyError, TypeError):
+            source = json.loads(marker.read_text())["row"]["source"]
+        except (OSError, ValueError, KeyError, TypeError, IndexError, RecursionError):
             continue
+        if isinstance(source, str):
+            names[marker.parent.name] = source
     return names
 
 

@@ -8,6 +8,7 @@ import logging
 import os
 import signal
 import socket
+import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -62,7 +63,35 @@ def check_reachable(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
 
 
 @contextlib.contextmanager
+def _sigint_held() -> Iterator[None]:
+    """Ray's servers start with SIGINT blocked (the mask is inherited), so a Ctrl-C in the terminal reaches only
+    this driver, which then cancels the missions and stops Ray in order. Blocked, not ignored: a Ctrl-C during the
+    start stays pending and arrives when it is done (ignored, it was lost and every mission ran). Ray's own
+    SIGINT/SIGTERM handlers, if it set any, give way to the command line's again."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    import ray._private.utils as ray_utils
+
+    # ray.init sets a SIGTERM handler that calls sys.exit(15) at once, leaving its servers and no message: while it
+    # starts, SIGTERM stays the command line's (a clean stop, 143), and Ray is shut down by the caller
+    set_handler = ray_utils.set_sigterm_handler
+    ray_utils.set_sigterm_handler = lambda handler: None
+    try:
+        yield
+    finally:
+        ray_utils.set_sigterm_handler = set_handler
+        for sig, handler in handlers.items():
+            if handler is not None:
+                signal.signal(sig, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
+@contextlib.contextmanager
 def _sigint_ignored() -> Iterator[None]:
+    """A second Ctrl-C must not cut the clean-up short."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -93,9 +122,8 @@ def start_ray(address: str | None, workers: int | None) -> Any:
         ray_constants.ENABLE_RAY_CLUSTER = False  # already read if ray was imported before
     common: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False, "configure_logging": True}
     if address is None:
-        # Ray's servers stay in the terminal's process group: started with SIGINT ignored (inherited), a
-        # Ctrl-C reaches only this driver, which then cancels the missions and stops Ray in order.
-        with _sigint_ignored():
+        # Ray's servers stay in the terminal's process group: see `_sigint_held`
+        with _sigint_held():
             ray.init(
                 address="local",
                 num_cpus=workers or len(os.sched_getaffinity(0)),  # the cores this process may use
@@ -135,8 +163,18 @@ def run_missions(
     run = BatchRun()
     if not tasks:
         return run
-    ray = start_ray(address, workers)
     t0 = perf_counter()
+    on_term = signal.getsignal(signal.SIGTERM)  # the command line's: SIGTERM stops like Ctrl-C (Ray sets its own)
+    try:
+        ray = start_ray(address, workers)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM while Ray started: no mission is begun
+        run.interrupted = True
+        started = sys.modules.get("ray")  # perhaps cut off mid-import: only a Ray that did start is stopped
+        with _sigint_ignored(), contextlib.suppress(Exception):
+            if started is not None and started.is_initialized():
+                started.shutdown()
+        run.wall_time_s = perf_counter() - t0
+        return run
     try:
         resources = ray.cluster_resources()
         cpus = int(resources.get("CPU", 0))
@@ -157,6 +195,8 @@ def run_missions(
         pending: dict[Any, MissionTask] = {}
         try:
             while queue or pending:
+                if on_term is not None:  # the command line's SIGTERM, whatever Ray set meanwhile
+                    signal.signal(signal.SIGTERM, on_term)
                 while queue and len(pending) < run.workers:
                     task = queue.pop(0)
                     pending[remote.remote(task, board)] = task

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import resource
 import socket
 import traceback
 import warnings
@@ -35,13 +37,75 @@ class MemoryBoundExceeded(AftershockError):
     """A mission's worker grew beyond the memory bound given to each worker."""
 
 
+class MemoryBound:
+    """The OS holds a mission to its bound: the worker's address space may grow by at most the bound
+    (RLIMIT_AS, soft limit, restored after the mission: Ray reuses workers), so an allocation past it fails at
+    once instead of taking the node down; and the kernel's peak-RSS counter (VmHWM) is reset at the start, so
+    the row gets the mission's true peak, not a sample every half second."""
+
+    def __init__(self, limit_bytes: int) -> None:
+        self.limit = limit_bytes
+        self._saved: tuple[int, int] | None = None
+
+    def __enter__(self) -> MemoryBound:
+        _reset_peak()
+        return self
+
+    def arm(self) -> None:
+        """Set the bound from here on (called at the first scan, once the libraries are loaded: their mappings
+        are address space, not memory the mission uses)."""
+        if not self.limit or self._saved is not None:
+            return
+        soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+        want = _mapped_bytes() + self.limit
+        if hard != resource.RLIM_INFINITY:
+            want = min(want, hard)
+        if soft == resource.RLIM_INFINITY or want < soft:
+            try:
+                resource.setrlimit(resource.RLIMIT_AS, (want, hard))
+                self._saved = (soft, hard)
+            except (ValueError, OSError):  # a platform without RLIMIT_AS: the RSS checks still hold
+                self._saved = None
+
+    def __exit__(self, *exc: object) -> None:
+        if self._saved is not None:
+            with contextlib.suppress(ValueError, OSError):
+                resource.setrlimit(resource.RLIMIT_AS, self._saved)
+            self._saved = None
+
+    @staticmethod
+    def peak_bytes() -> int | None:
+        """The kernel's peak resident memory of this process since `__enter__` (None where it keeps none)."""
+        try:
+            text = Path("/proc/self/status").read_text()
+        except OSError:
+            return None
+        for line in text.splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+        return None
+
+
+def _reset_peak() -> None:
+    with contextlib.suppress(OSError):  # Linux 4.0+: writing 5 resets VmHWM to the current RSS
+        Path("/proc/self/clear_refs").write_text("5")
+
+
+def _mapped_bytes() -> int:
+    try:
+        return int(Path("/proc/self/statm").read_text().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 class ProgressSink(Sink):
     """Reports a mission's scans (and scans/s) to the driver's progress board, and keeps the worker within
     its memory bound: it is the only place that sees every scan go by."""
 
-    def __init__(self, name: str, board: Any, memory_limit_bytes: int) -> None:
+    def __init__(self, name: str, board: Any, memory_limit_bytes: int, bound: MemoryBound | None = None) -> None:
         import psutil
 
+        self.bound = bound
         self.name = name
         self.board = board
         self.limit = memory_limit_bytes
@@ -54,6 +118,8 @@ class ProgressSink(Sink):
     def stage(self, frame: Frame, stage: Stage) -> None:
         if stage is not Stage.CLUSTERED:
             return
+        if self.scans == 0 and self.bound is not None:
+            self.bound.arm()
         self.scans += 1
         now = perf_counter()
         if now - self.last >= PROGRESS_EVERY_S:
@@ -63,7 +129,7 @@ class ProgressSink(Sink):
                 self.board.report.remote(self.name, self.scans, self.scans / max(now - self.t0, 1e-9))
 
     def check_memory(self) -> None:
-        rss = self.process.memory_info().rss
+        rss = max(self.process.memory_info().rss, MemoryBound.peak_bytes() or 0)
         self.peak_rss = max(self.peak_rss, rss)
         if self.limit and rss > self.limit:
             raise MemoryBoundExceeded(
@@ -92,6 +158,7 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
     row["folder"] = str(folder)
     notes: list[str] = []
     progress: ProgressSink | None = None
+    bound = MemoryBound(task.memory_limit_bytes)
     try:
         # Not complete until mission.json is written again at the very end.
         (folder / MARKER_FILE).unlink(missing_ok=True)
@@ -102,9 +169,9 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         cfg.registration.threads = 1  # one core per mission: missions share the machine, not threads
         cfg.stream.overlap = False  # ... nor a second thread reading ahead
         row["source_kind"] = sources.kind_of(task.source).value
-        progress = ProgressSink(task.name, board, task.memory_limit_bytes)
+        progress = ProgressSink(task.name, board, task.memory_limit_bytes, bound)
         outputs = Outputs(save=folder / RECORDING_FILE, export=folder, force=True)  # the folder is being redone
-        with warnings.catch_warnings(record=True) as caught:
+        with bound, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
                 result, extra, info = run_source(
@@ -127,6 +194,11 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         row["status"] = STATUS_INTERRUPTED if result.summary.interrupted else STATUS_OK
     except KeyboardInterrupt:
         row["status"] = STATUS_INTERRUPTED
+    except MemoryError as exc:  # the address-space bound refused an allocation: the mission is over its bound
+        detail = f" ({one_line(exc)})" if str(exc) else ""
+        row["status"] = STATUS_FAILED
+        bound_gb = task.memory_limit_bytes / 2**30
+        row["error"] = f"the mission needed more than its bound of {bound_gb:.2f} GB a worker (--worker-memory){detail}"
     except AftershockError as exc:
         row["status"], row["error"] = STATUS_FAILED, str(exc)
     except Exception as exc:  # a bug, or a log broken in a way no reader foresaw: one line here, details in a file
@@ -134,7 +206,7 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         with contextlib.suppress(OSError):
             (folder / ERROR_FILE).write_text(traceback.format_exc())
     if progress is not None:
-        progress.peak_rss = max(progress.peak_rss, progress.process.memory_info().rss)
+        progress.peak_rss = max(progress.peak_rss, progress.process.memory_info().rss, MemoryBound.peak_bytes() or 0)
         row["peak_rss_mb"] = round(progress.peak_rss / 2**20, 1)
     row["warnings"] = "\n".join(dict.fromkeys(notes)) or None
     row["processing_s"] = round(perf_counter() - t0, 3)

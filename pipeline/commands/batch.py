@@ -9,6 +9,7 @@ on the next run).
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any, Final
@@ -112,6 +113,8 @@ def batch(
     from aftershock.pipeline.batch.sources import expand_sources, name_missions
     from aftershock.pipeline.mission import build_config
 
+    if not math.isfinite(worker_memory):  # `inf` would be no bound at all, and no size Ray can pack by
+        raise InputError(f"--worker-memory {worker_memory}: give the GB of memory one worker may take")
     cfg = build_config(config, overrides, labeller, max_scans=max_scans)
     if address is not None:
         ray_pool.check_reachable(address)  # before anything is written, even when every mission is complete

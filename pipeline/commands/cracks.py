@@ -49,8 +49,8 @@ def cracks(
     ),
     detector: str | None = typer.Option(
         None,
-        help="isolation-forest (default) | ridge (orthoimage ridges) | robust-covariance | one-class-svm | lof | "
-        "kmeans | gmm | mean-shift.",
+        help="isolation-forest (default) | ridge (orthoimage ridges) | region (damaged regions) | "
+        "robust-covariance | one-class-svm | lof | kmeans | gmm | mean-shift.",
     ),
     resolution: float | None = typer.Option(
         None, help="Evaluation grid in metres (default: 1 mm for columns/walls, 1 cm for slabs)."

@@ -8,6 +8,7 @@ from datetime import UTC, datetime
 import typer
 
 from aftershock.pipeline import progress
+from aftershock.pipeline.text import safe
 
 
 def _when(ns: int | None) -> str:
@@ -51,7 +52,7 @@ def format_summary(summary) -> str:
         lines.append(f"  ground truth: {', '.join(gt) if gt else 'none'}")
     poses = ", ".join(summary.pose_topics) if summary.pose_topics else "none"
     lines.append(f"ground-truth pose topics (PoseStamped): {poses}")
-    return "\n".join(lines)
+    return "\n".join(safe(line) for line in lines)  # topic and field names come from the file
 
 
 def info(

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import note
 
 
@@ -30,6 +29,10 @@ def refine(
     as_json: bool = typer.Option(False, "--json", help="Print the results as JSON (nothing else on stdout)."),
 ) -> None:
     """Re-segment a cloud into objects by learnt region growing."""
+    if seed is not None and not 0 <= seed <= 2**32 - 1:
+        from aftershock.pipeline.errors import InputError
+
+        raise InputError(f"--seed {seed}: a seed is between 0 and {2**32 - 1} (numpy and torch take 32-bit seeds)")
     from aftershock.pipeline.cloud_io import check_output, finite_points, read_cloud, write_cloud
     from aftershock.pipeline.config import load_config
     from aftershock.pipeline.refine import baseline_cloud, refine_cloud, scores

@@ -64,6 +64,8 @@ def print_human(result: StreamResult, outputs: dict[str, str], info: RunInfo | N
         print(f"skipped {s.skipped_messages} messages that could not be decoded (see the warnings)")
     if s.damage:
         print(f"the log ended early: {s.damage}")
+    for text in s.warnings:
+        print(f"warning: {text}")
     if "rerun" in outputs:
         if info is not None and info.raw_in_log:
             print(f"open it with its log: aftershock view {info.source} {outputs['rerun']}")

@@ -25,6 +25,12 @@ def train(
     as_json: bool = typer.Option(False, "--json", help="Print the training figures as JSON."),
 ) -> None:
     """Train a network from simulated missions and write its weights."""
+    from aftershock.pipeline.errors import InputError
+
+    if epochs is not None and epochs < 1:
+        raise InputError(f"--epochs {epochs}: training takes at least one epoch")
+    if not 0 <= seed <= 2**32 - 1:
+        raise InputError(f"--seed {seed}: a seed is between 0 and {2**32 - 1} (numpy and torch take 32-bit seeds)")
     module = importlib.import_module(f"aftershock.models.{model.value}_train")
     figures = module.train(out=out, seed=seed, epochs=epochs, force=force)
     if as_json:

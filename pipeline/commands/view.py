@@ -78,13 +78,14 @@ def view(
 ) -> None:
     """Open a log and its recording together, lined up on the log's timelines."""
     from aftershock import sources
-    from aftershock.pipeline.cloud_io import check_output
+    from aftershock.pipeline.outputs import check_output, commit, part_path
     from aftershock.sinks.rerun_sink import recording_id_for
 
     check_log(log)
     rid = check_pair(log, recording) if recording is not None else None
     desc = sources.describe(log, topic)
-    out = check_output(save, force) if save is not None else None
+    inputs = [log] + ([recording] if recording is not None else [])
+    out = check_output(save, force, inputs) if save is not None else None  # never one of what it reads
 
     import rerun as rr
     from rerun.chunk import McapReader, RrdReader
@@ -96,8 +97,8 @@ def view(
     rr.set_log_time_enabled(False, recording=rec)
     blueprint = L.default_blueprint(log_topic=desc.topic if desc.raw_in_log else None)
     viewer = None
-    if out is not None:
-        rec.set_sinks(rr.FileSink(out), default_blueprint=blueprint)
+    if out is not None:  # written beside and renamed when complete: an interrupted view leaves no half file
+        rec.set_sinks(rr.FileSink(str(part_path(out))), default_blueprint=blueprint)
     else:
         viewer = start_viewer(web=web, bind=bind, port=port)
         rec.set_sinks(rr.GrpcSink(viewer.grpc_url), default_blueprint=blueprint)
@@ -107,6 +108,7 @@ def view(
     rec.flush()
     if out is not None:
         rec.disconnect()
+        commit(part_path(out), out)
         print(f"wrote {out}: {log.name}" + (f" with {recording.name}" if recording else ""))
         return
     assert viewer is not None

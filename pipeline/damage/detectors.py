@@ -41,6 +41,7 @@ class Detector(StrEnum):
     GMM = "gmm"
     MEAN_SHIFT = "mean-shift"
     RIDGE = "ridge"  # not a point-feature detector: thin ridges on the faces' orthoimages (damage/ridge.py)
+    REGION = "region"  # not a point-feature detector: damaged regions on the faces' orthoimages (damage/region.py)
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,6 +30,8 @@ from aftershock.pipeline.damage.drift import DriftResult, measure_drift
 from aftershock.pipeline.damage.features import FeatureSet, compute_features, parse_features
 from aftershock.pipeline.damage.measure import Scores, fit_plane, keep_narrow, measure_cracks, score, supported
 from aftershock.pipeline.damage.recess import depth_z, keep_recessed
+from aftershock.pipeline.damage.region import region_mask
+from aftershock.pipeline.damage.region import settings_of as region_settings
 from aftershock.pipeline.damage.ridge import ridge_mask, settings_of
 from aftershock.pipeline.damage.tint import keep_tinted, measure_tint
 from aftershock.pipeline.errors import InputError
@@ -277,6 +279,11 @@ def find_cracks(
     if det == Detector.RIDGE:
         t0 = time.perf_counter()
         mask = ridge_mask(part, spacing, settings_of(cfg), cfg.seed)
+        timings["detect"] = time.perf_counter() - t0
+        feature_name = "orthoimage"
+    elif det == Detector.REGION:
+        t0 = time.perf_counter()
+        mask = region_mask(part, spacing, region_settings(cfg), cfg.seed)
         timings["detect"] = time.perf_counter() - t0
         feature_name = "orthoimage"
     else:

@@ -88,6 +88,9 @@ class MCPNetLabeller:
         self.vote = cfg.label.instance_vote
         self.raw_class = np.zeros(0, np.int64)  # the network's own class per map row, before instance votes
         self.raw_score = np.zeros(0, np.float32)
+        # its class probabilities per map row (float16 keeps 28 bytes a voxel): a voxel whose class an instance
+        # vote changed gets the probability the network gave that class as its confidence
+        self.raw_prob = np.zeros((0, self.net.num_classes), np.float16)
         self.rng = np.random.default_rng(0)  # which older voxels are relabelled
 
     @property
@@ -102,13 +105,24 @@ class MCPNetLabeller:
         floor_z: float,
         use_color: bool,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Class ids (K,) uint16, scores (K,) float32 and embeddings (K, E) float32 of map rows, seen from
-        the robot at `origin` ((3,), or (K, 3) one per row)."""
+        """Class ids (K,) uint16, scores (K,) float32 (the softmax probability of that class) and embeddings
+        (K, E) float32 of map rows, seen from the robot at `origin` ((3,), or (K, 3) one per row)."""
+        prob, emb = self.predict_probs(vmap, rows, origin, floor_z, use_color)
+        return prob.argmax(axis=1).astype(np.uint16), prob.max(axis=1, initial=0.0), emb
+
+    def predict_probs(
+        self,
+        vmap: VoxelMap,
+        rows: np.ndarray,
+        origin: np.ndarray,
+        floor_z: float,
+        use_color: bool,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Softmax class probabilities (K, C) float32 and embeddings (K, E) float32 of map rows (see `predict`)."""
         model, net = (self.model, self.net) if use_color else (self.mono_model, self.mono_net)
         rows = np.asarray(rows, dtype=np.int64)
         k = len(rows)
-        classes = np.zeros(k, np.uint16)
-        scores = np.zeros(k, np.float32)
+        probs = np.zeros((k, net.num_classes), np.float32)
         emb = np.zeros((k, self.embedding_dim), np.float32)
         colors = vmap.colors if use_color else None
         use_ctx = net.kind == "mcpnet"
@@ -133,12 +147,9 @@ class MCPNetLabeller:
                         wide = model.pool_pairs(torch.from_numpy(w), torch.from_numpy(owner), len(r), wide=True)
                         pooled = torch.cat([pooled, wide], dim=1)
                 e, logits = model.head(torch.from_numpy(pf), pooled)
-                prob = torch.softmax(logits, dim=1)
-                best, cls = prob.max(dim=1)
-            classes[s : s + CHUNK] = cls.numpy().astype(np.uint16)
-            scores[s : s + CHUNK] = best.numpy()
+                probs[s : s + CHUNK] = torch.softmax(logits, dim=1).numpy()
             emb[s : s + CHUNK] = e.numpy()
-        return classes, scores, emb
+        return probs, emb
 
     def wide_context_rows(self, vmap: VoxelMap, rows: np.ndarray, net: NetConfig) -> np.ndarray | None:
         """The wider context's rows (K, Mw) of map rows (K,), drawn as `net` was trained (None without)."""
@@ -163,19 +174,25 @@ class MCPNetLabeller:
             rows_old = self.rng.choice(old, budget, replace=False) if len(old) > budget else old
         else:
             rows_old = np.zeros(0, np.int64)
-        classes, scores, emb = self.predict(vmap, np.r_[rows, rows_old], origin, floor_z, use_color)
+        probs, emb = self.predict_probs(vmap, np.r_[rows, rows_old], origin, floor_z, use_color)
+        classes, scores = probs.argmax(axis=1).astype(np.uint16), probs.max(axis=1, initial=0.0)
         n = len(rows)
         self._grow(len(vmap))
-        self.raw_class[rows], self.raw_score[rows] = classes[:n], scores[:n]
+        self.raw_class[rows], self.raw_score[rows], self.raw_prob[rows] = classes[:n], scores[:n], probs[:n]
         vmap.class_ids[rows] = classes[:n]
         vmap.scores[rows] = scores[:n]
         vmap.embeddings[rows] = emb[:n]
         if len(rows_old):
             # An older voxel takes the new class only when the network is now surer of it.
             better = scores[n:] > self.raw_score[rows_old]
-            self.raw_class[rows_old[better]] = classes[n:][better]
-            self.raw_score[rows_old[better]] = scores[n:][better]
-            vmap.class_ids[rows_old[better]] = classes[n:][better]
+            up = rows_old[better]
+            self.raw_class[up], self.raw_score[up], self.raw_prob[up] = (
+                classes[n:][better],
+                scores[n:][better],
+                probs[n:][better],
+            )
+            vmap.class_ids[up] = classes[n:][better]
+            vmap.scores[up] = scores[n:][better]
         if self.vote and frame.map_rows is not None:
             self.vote_instances(vmap, vmap.instance_ids[frame.map_rows.rows])
 
@@ -184,10 +201,14 @@ class MCPNetLabeller:
             size = max(n, 2 * len(self.raw_class), 4096)
             self.raw_class = np.resize(self.raw_class, size)
             self.raw_score = np.resize(self.raw_score, size)
+            prob = np.zeros((size, self.raw_prob.shape[1]), np.float16)
+            prob[: len(self.raw_prob)] = self.raw_prob
+            self.raw_prob = prob
 
     def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
         """Every voxel of these instances takes the class its instance's voxels vote for, each vote weighted
-        by the network's confidence (the network's own per-voxel predictions are kept for later votes)."""
+        by the network's confidence (the network's own per-voxel predictions are kept for later votes); its
+        confidence becomes the probability the network gave it for that class."""
         touched = np.unique(instances)
         touched = touched[touched > 0]
         if not len(touched):
@@ -199,7 +220,9 @@ class MCPNetLabeller:
         votes = np.bincount(
             which * c + self.raw_class[members], weights=self.raw_score[members], minlength=len(touched) * c
         )
-        vmap.class_ids[members] = votes.reshape(len(touched), c).argmax(axis=1)[which].astype(np.uint16)
+        voted = votes.reshape(len(touched), c).argmax(axis=1)[which]
+        vmap.class_ids[members] = voted.astype(np.uint16)
+        vmap.scores[members] = self.raw_prob[members, voted]
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         """Link two voxels when their embeddings' cosine similarity exceeds β."""

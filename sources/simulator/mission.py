@@ -13,6 +13,7 @@ from typing import Final
 import numpy as np
 
 from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.types import Scan
 from aftershock.sources.simulator.conditions import Conditions, apply_optics, dark_losses, mix_edges
 from aftershock.sources.simulator.profiles import SensorProfile
@@ -25,6 +26,9 @@ DEFAULT_SCANS: Final = 100
 LIDAR_FRAME: Final = "lidar"
 POINTS_TOPIC: Final = "/lidar/points"
 QUANTUM_INV: Final = 512.0  # 2 mm: the VLP-16 packet range resolution
+
+
+_SWEEP_BYTES = 4 * 8  # float64 arrays per sweep while its start times are computed (k, trigger, starts)
 
 
 class Mission:
@@ -66,7 +70,7 @@ class Mission:
         self.trajectory: Trajectory = plan_tour(scene, story, self.seed, speed, robot)
         self._starts = np.zeros(0)
         if scans is None:
-            scans = DEFAULT_SCANS if duration_s is None else self.count_before(duration_s)
+            scans = DEFAULT_SCANS if duration_s is None else self.count_before(duration_s, "sim:// duration")
         self.num_scans = int(scans)
         self._dirs = profile.directions()  # (C, B, 3)
         self._times = profile.times()  # (C, B)
@@ -91,15 +95,23 @@ class Mission:
     def sweep_start_s(self, k: int) -> float:
         return float(self.sweep_starts(k + 1)[k])
 
-    def count_before(self, t: float) -> int:
-        """How many sweeps start before time t."""
+    def count_before(self, t: float, setting: str = "the mission's time") -> int:
+        """How many sweeps start before time t; InputError naming `setting` when the sweep times up to t would
+        not fit in memory (`duration=1e15` is refused, not allocated)."""
+        from aftershock.pipeline.limits import check_allocation
+
+        if not np.isfinite(t):
+            raise InputError(f"{setting}: {t} is not a time")
+        # a sweep never starts before the previous one ended: at most t / sweep_s + 1 sweeps start before t
+        most = t / self.profile.sweep_s + 1
+        check_allocation(2 * most * _SWEEP_BYTES, setting, f"{t:g} s of sweeps ({most:.3g} sweep times)")
         n = 64
         while self.sweep_starts(n)[-1] < t:
             n *= 2
         return int(np.searchsorted(self.sweep_starts(n), t, side="left"))
 
-    def first_at_or_after(self, t: float) -> int:
-        return self.count_before(t - 1e-9) if t > 0 else 0
+    def first_at_or_after(self, t: float, setting: str = "--start") -> int:
+        return self.count_before(t - 1e-9, setting) if t > 0 else 0
 
     def __iter__(self) -> Iterator[Scan]:
         for k in range(self.num_scans):

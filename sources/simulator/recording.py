@@ -22,8 +22,8 @@ from typing import Final
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.outputs import StreamedOutput, check_output
 from aftershock.pipeline.pointcloud2 import (
     encode_pointcloud2,
     pose_stamped_message,
@@ -157,8 +157,9 @@ def write_mission(
     """Write scans (with ground truth) to an MCAP file; returns what was written."""
     p = check_output(path, force)
     stats = MissionStats()
+    out = StreamedOutput(p)  # written as NAME.part and renamed when complete
     try:
-        f = open(p, "wb")  # noqa: SIM115 (closed in the finally below)
+        f = out.open("wb")
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror}", p) from None
     try:
@@ -194,7 +195,10 @@ def write_mission(
     except OSError as exc:
         what = f"cannot write: {exc.strerror or exc}; the scans written before stay readable"
         raise OutputError(what, p) from None
+    except BaseException:  # Ctrl-C, SIGTERM or a bad scan: no MCAP cut off mid-record is left behind
+        out.discard()
+        raise
     finally:
         with suppress(OSError):  # the buffer could not reach the disk either: the write error is reported
-            f.close()
+            out.close()
     return stats
