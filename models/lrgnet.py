@@ -134,7 +134,7 @@ def load_weights(path: str | Path, expected: dict[str, Any], layouts: dict[int, 
     settings = header.get("settings", {})
     if not isinstance(settings, dict):
         raise InputError(f"not an LRGNet weights file: its settings are a {type(settings).__name__}; {REBUILD_HINT}", p)
-    layout = (settings.get("feature_version"), settings.get("features"))
+    layout: tuple[Any, Any] = (settings.get("feature_version"), settings.get("features"))  # as the file has them
     if layouts.get(layout[0]) != layout[1]:
         known = ", ".join(f"{v} ({n} features)" for v, n in layouts.items())
         raise InputError(

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import BinaryIO, Final
+from typing import IO, Final
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
@@ -78,7 +78,7 @@ class McapSink(Sink):
     def __init__(self, path: Path, force: bool = False) -> None:
         self.path = check_output(path, force)
         self._out = StreamedOutput(self.path)  # written as NAME.part, renamed by `close`
-        self._file: BinaryIO | None = None
+        self._file: IO[bytes] | None = None
         self._writer: Writer | None = None
         self._points = self._pose = 0
         self._pending: dict[int, Frame] = {}
