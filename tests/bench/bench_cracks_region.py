@@ -27,7 +27,17 @@ from typing import Any, Final
 
 import numpy as np
 import pytest
-from cracks_common import PUBLISHED, PUBLISHED_WIDTH, crack_row, evaluated_cloud, f1_score, far_share, sim_spacing
+from cracks_common import (
+    PUBLISHED,
+    PUBLISHED_WIDTH,
+    crack_row,
+    evaluated_cloud,
+    f1_score,
+    far_share,
+    print_simulated_f1,
+    print_speed_against_old_default,
+    sim_spacing,
+)
 
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import CrackConfig
@@ -179,21 +189,7 @@ def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarra
     print(f"  worst {max(shares) * 100:.2f} %, mean {np.mean(shares) * 100:.2f} %")
 
     print("\nSimulated cracked elements never used for a choice (with marks), F1 with the shipped region settings:")
-    for kind in SIM_KINDS:
-        f = []
-        for seed in (310, 311, 312):
-            cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), marks=True)
-            f.append(find_cracks(cloud, cfg_default, mask).scores.f1)  # type: ignore[union-attr]
-        print(f"  {kind:6s} F1 " + " ".join(f"{v:.2f}" for v in f))
+    print_simulated_f1(cfg_default, SIM_KINDS)
 
     cloud, mask = real["column2"]
-    t0 = time.perf_counter()
-    find_cracks(cloud, cfg_default, mask)
-    region_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-    old_s = time.perf_counter() - t0
-    print(
-        f"\nSpeed on column2 ({len(cloud)} points): region {region_s:.2f} s, old default {old_s:.2f} s "
-        f"(ratio {region_s / old_s:.2f}) on this shared machine; whole benchmark {time.perf_counter() - t_start:.0f} s"
-    )
+    print_speed_against_old_default("region", cloud, mask, cfg_default, t_start)

@@ -26,7 +26,16 @@ from typing import Any, Final
 
 import numpy as np
 import pytest
-from cracks_common import PUBLISHED, PUBLISHED_WIDTH, crack_row, evaluated_cloud, f1_score, sim_spacing
+from cracks_common import (
+    PUBLISHED,
+    PUBLISHED_WIDTH,
+    crack_row,
+    evaluated_cloud,
+    f1_score,
+    print_simulated_f1,
+    print_speed_against_old_default,
+    sim_spacing,
+)
 
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import CrackConfig
@@ -166,21 +175,7 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
     )
 
     print("\nSimulated cracked elements never used for a choice (with marks), F1 with the default:")
-    for kind in SIM_KINDS:
-        f = []
-        for seed in (310, 311, 312):
-            cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), marks=True)
-            f.append(find_cracks(cloud, cfg_default, mask).scores.f1)  # type: ignore[union-attr]
-        print(f"  {kind:6s} F1 " + " ".join(f"{v:.2f}" for v in f))
+    print_simulated_f1(cfg_default, SIM_KINDS)
 
     cloud, mask = real["column2"]
-    t0 = time.perf_counter()
-    find_cracks(cloud, cfg_default, mask)
-    ridge_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-    old_s = time.perf_counter() - t0
-    print(
-        f"\nSpeed on column2 ({len(cloud)} points): ridge {ridge_s:.2f} s, old default {old_s:.2f} s "
-        f"(ratio {ridge_s / old_s:.2f}) on this shared machine; whole benchmark {time.perf_counter() - t_start:.0f} s"
-    )
+    print_speed_against_old_default("ridge", cloud, mask, cfg_default, t_start)

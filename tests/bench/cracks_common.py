@@ -3,11 +3,13 @@ beside ours, the cloud find_cracks evaluates, F1, the share of crack-free points
 
 from __future__ import annotations
 
+import time
 from typing import Final
 
 import numpy as np
 
-from aftershock.pipeline.damage.report import CrackResult, carry_mask, default_resolution
+from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.damage.report import CrackResult, carry_mask, default_resolution, find_cracks
 from aftershock.pipeline.geometry import point_spacing, voxel_downsample
 from aftershock.pipeline.types import LabelledCloud
 
@@ -58,4 +60,32 @@ def crack_row(label: str, r: CrackResult, published: str) -> str:
     return (
         f"  {label:8s} F1 {s.f1:.3f} (P {s.precision:.2f} R {s.recall:.2f})  crack-free flagged {far * 100:5.2f} %  "
         f"main crack length error {le} mm, width error {we} mm  | published {published}"
+    )
+
+
+def print_simulated_f1(cfg: CrackConfig, kinds: tuple[str, ...], seeds: tuple[int, ...] = (310, 311, 312)) -> None:
+    """F1 on simulated cracked elements (with site marks) of seeds never used for a choice, one line per kind."""
+    from aftershock.sources.simulator.cracks import cracked_element
+
+    for kind in kinds:
+        f = []
+        for seed in seeds:
+            cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), marks=True)
+            f.append(find_cracks(cloud, cfg, mask).scores.f1)  # type: ignore[union-attr]
+        print(f"  {kind:6s} F1 " + " ".join(f"{v:.2f}" for v in f))
+
+
+def print_speed_against_old_default(
+    name: str, cloud: LabelledCloud, mask: np.ndarray, cfg: CrackConfig, t_start: float
+) -> None:
+    """Seconds of `cfg` (detector `name`) and of the old default on one element, and the whole benchmark's."""
+    t0 = time.perf_counter()
+    find_cracks(cloud, cfg, mask)
+    new_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
+    old_s = time.perf_counter() - t0
+    print(
+        f"\nSpeed on column2 ({len(cloud)} points): {name} {new_s:.2f} s, old default {old_s:.2f} s "
+        f"(ratio {new_s / old_s:.2f}) on this shared machine; whole benchmark {time.perf_counter() - t_start:.0f} s"
     )
