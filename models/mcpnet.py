@@ -32,7 +32,7 @@ from aftershock.models.netconfig import (
 )
 from aftershock.models.pointnet import PointNet
 from aftershock.models.weights_file import WEIGHTS_DIR, read_weights
-from aftershock.pipeline.classes import NUM_CLASSES
+from aftershock.pipeline.classes import NETWORK_CLASSES
 from aftershock.pipeline.errors import InputError
 
 FORMAT: Final = "aftershock-mcpnet"
@@ -171,9 +171,9 @@ def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, Ne
             f"{' or '.join(str(list(k)) for k in known)}; {REBUILD_HINT}",
             path,
         )
-    if cfg.num_classes != NUM_CLASSES:
+    if cfg.num_classes != NETWORK_CLASSES:
         raise InputError(
-            f"weights predict {cfg.num_classes} classes, the class table has {NUM_CLASSES}; {REBUILD_HINT}", path
+            f"weights predict {cfg.num_classes} classes, the networks predict {NETWORK_CLASSES}; {REBUILD_HINT}", path
         )
     model: nn.Module = PointNet(cfg) if cfg.kind == "pointnet" else MCPNet(cfg)
     try:

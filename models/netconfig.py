@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, Final
 
-from aftershock.pipeline.classes import NUM_CLASSES
+from aftershock.pipeline.classes import NETWORK_CLASSES
 
 # Feature layout, recorded in every weights file so that a file trained on another layout is refused.
 POINT_FEATURES: Final[tuple[str, ...]] = ("x", "y", "z", "r", "g", "b", "has_color")
@@ -50,7 +50,7 @@ class NetConfig:
     context_dim: int = CONTEXT_DIM
     width: int = 200
     embed_dim: int = 50
-    num_classes: int = NUM_CLASSES
+    num_classes: int = NETWORK_CLASSES
     context_points: int = 50
     context_cell_m: float = 0.3
     voxel_m: float = 0.1

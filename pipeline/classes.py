@@ -1,7 +1,9 @@
 """The one class table: ids, names and colours shared by the simulator, the networks, the metrics and Rerun.
 
 The ids are part of the file formats (DESIGN.md): the order of the Stanford indoor benchmark, then debris.
-New classes are appended after the last one; 65535 means unlabelled.
+New classes are appended after the last one; 65535 means unlabelled. The networks predict the first
+`NETWORK_CLASSES` (their output heads); the classes after them come from the structure model alone
+(pipeline.structure): ground, the terrain a robot drives on outdoors.
 """
 
 from __future__ import annotations
@@ -27,30 +29,34 @@ class SemanticClass(IntEnum):
     BOARD = 11
     CLUTTER = 12
     DEBRIS = 13
+    GROUND = 14  # outdoors: the terrain (the structure model's, never a network's)
 
 
 UNLABELLED: Final = 65535
-NUM_CLASSES: Final = len(SemanticClass)
+NUM_CLASSES: Final = len(SemanticClass)  # every class a map can hold (metrics, formats, the viewer)
+NETWORK_CLASSES: Final = SemanticClass.DEBRIS + 1  # the classes the networks predict (their output heads)
 
 CLASS_NAMES: Final[tuple[str, ...]] = tuple(c.name.lower() for c in SemanticClass)
 
-# RGB colours, chosen to stay distinguishable in the viewer (structure in muted tones, contents bright).
+# RGB colours, chosen so that every two classes stay apart (CIE76 ΔE at least 28; tests/test_palette.py prints
+# the closest pair): structure in blues and tans, contents in saturated hues, debris dark brown.
 CLASS_COLORS: Final[np.ndarray] = np.array(
     [
-        [158, 218, 229],  # ceiling
-        [152, 138, 114],  # floor
-        [174, 199, 232],  # wall
-        [255, 187, 120],  # beam
-        [214, 39, 40],  # column
-        [44, 160, 44],  # window
-        [148, 103, 189],  # door
-        [140, 86, 75],  # table
-        [227, 119, 194],  # chair
-        [188, 189, 34],  # sofa
-        [31, 119, 180],  # bookcase
-        [255, 127, 14],  # board
-        [127, 127, 127],  # clutter
-        [90, 60, 30],  # debris
+        [170, 220, 255],  # ceiling: pale sky blue
+        [165, 140, 95],  # floor: tan
+        [100, 140, 230],  # wall: mid blue
+        [255, 170, 60],  # beam: orange
+        [220, 30, 40],  # column: red
+        [40, 200, 190],  # window: teal
+        [150, 70, 210],  # door: purple
+        [120, 200, 60],  # table: green
+        [255, 110, 200],  # chair: pink
+        [215, 215, 40],  # sofa: yellow
+        [30, 70, 120],  # bookcase: navy
+        [255, 240, 170],  # board: cream
+        [128, 128, 128],  # clutter: grey
+        [115, 60, 20],  # debris: dark brown
+        [110, 150, 80],  # ground: moss green
     ],
     dtype=np.uint8,
 )
@@ -99,3 +105,15 @@ def _hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
     for k, c in enumerate(choices):
         out[i == k] = c[i == k]
     return out
+
+
+def cie_lab(rgb: np.ndarray) -> np.ndarray:
+    """sRGB (0-255, D65) to CIE L*a*b*: the space in which palette distances (ΔE76) are measured."""
+    c = np.asarray(rgb, np.float64) / 255.0
+    c = np.where(c > 0.04045, ((c + 0.055) / 1.055) ** 2.4, c / 12.92)
+    m = np.array(
+        [[0.4124564, 0.3575761, 0.1804375], [0.2126729, 0.7151522, 0.0721750], [0.0193339, 0.1191920, 0.9503041]]
+    )
+    xyz = c @ m.T / np.array([0.95047, 1.0, 1.08883])
+    f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], axis=-1)

@@ -13,7 +13,19 @@ from typing import Final
 
 import typer
 
-from aftershock.pipeline.commands import batch, cracks, drift, evaluate, info, refine, run, simulate, train, view
+from aftershock.pipeline.commands import (
+    batch,
+    cracks,
+    drift,
+    evaluate,
+    info,
+    refine,
+    report,
+    run,
+    simulate,
+    train,
+    view,
+)
 from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
 from aftershock.pipeline.text import SafeFormatter, safe
 
@@ -54,6 +66,26 @@ app.command()(drift.drift)
 app.command()(refine.refine)
 app.command()(view.view)
 app.command()(batch.batch)
+app.command()(report.report)
+
+
+def _untag_flags() -> None:
+    """No `<bool>` type tag after on/off flags (--help included) in `--help`: typer shows every option's type,
+    and for a flag that reads as a value to give. Other options keep theirs (<path>, <int> ...)."""
+    from typer.core import TyperOption
+
+    shown = TyperOption.display_type_rich
+    if getattr(shown, "untagged", False):
+        return
+
+    def display_type_rich(self: TyperOption, ctx: typer.Context) -> str | None:
+        return None if self.is_flag else shown(self, ctx)
+
+    display_type_rich.untagged = True  # type: ignore[attr-defined]
+    TyperOption.display_type_rich = display_type_rich  # type: ignore[method-assign]
+
+
+_untag_flags()
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

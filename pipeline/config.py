@@ -355,6 +355,67 @@ class DriftConfig(_Section):
     seed: Seed = 0
 
 
+class ReportConfig(_Section):
+    """Limits `aftershock report` flags against (advisory: an engineer decides). Drift limits are residual
+    inter-storey drift ratios after FEMA P-58-1 (2012), Appendix C, residual drift damage states: 0.5 %
+    (1/200) realignment of the frame required, 1 % (1/100) major realignment, possibly not practical."""
+
+    drift_restricted_ratio: Annotated[float, Field(gt=0, lt=1)] = 1 / 200
+    drift_unsafe_ratio: Annotated[float, Field(gt=0, lt=1)] = 1 / 100
+    # Slab tilt flagged at the same slopes (an assumption of this tool, not a published limit)
+    tilt_restricted_deg: Annotated[float, Field(gt=0, le=90)] = 0.29  # atan(1/200)
+    tilt_unsafe_deg: Annotated[float, Field(gt=0, le=90)] = 0.57  # atan(1/100)
+    # Storeys are re-measured on the map with up from the lowest slab: `run` levels a map from its first scan,
+    # and on 2 drift frames (missing-slab 5, partial-collapse 6) that left 8-9 mm per storey, 0.3-2.6 mm with this
+    drift_gravity: Literal["ground-plane", "frame-z"] = "ground-plane"
+    # Worst drift error per storey on those frames through run (2.6 mm; measure_drift alone: 1.90 mm, README)
+    drift_uncertainty_mm: Positive = 3.0
+    # With drift_gravity frame-z: how far a levelled map's up may be off (0.31° seen on a drift frame)
+    level_uncertainty_deg: Annotated[float, Field(ge=0, le=10)] = 0.35
+    min_storey_height_m: Positive = 2.0  # slabs closer than this: the upper one is furniture or a platform
+    collapse_debris_share: Fraction = 0.25  # debris over this share of a storey's floor: partial collapse
+    exit_clearance_m: Positive = 1.0  # debris within this of a door blocks it
+    plan_cell_m: Positive = 0.1  # grid of the debris volume and floor area
+    plan_points: Count = 150_000  # most map points drawn per plan view
+
+
+class StructureConfig(_Section):
+    """The structure model (pipeline.structure): slabs, walls, columns, beams and the ground found from geometry
+    and gravity in the levelled map, and labels fused with the network's (geometry decides what it can)."""
+
+    enabled: bool = True
+    tile_m: Positive = 2.0  # walls, columns and beams are found per square tile of this size, where the map changed
+    tiles_per_scan: Count = 2  # at most this many changed tiles refitted a scan (the rest wait their turn) ...
+    # ... and refits go through at most this many voxels (of a tile and the 8 around it) a scan on average (all
+    # changed tiles are refitted at the end): a budget in voxels, so that labels never depend on the machine's speed
+    budget_voxels: Count = 500
+    min_new_voxels: Count = 40  # a tile is refitted once this many voxels were added to it since its last fit
+    plane_threshold_m: Positive = 0.06  # a voxel lies on a plane within this distance
+    slab_bin_m: Positive = 0.05  # height histogram of the map for the story slabs (pipeline.damage.drift)
+    slab_density_ratio: Positive = 1.5
+    slab_neighbourhood_bins: Count = 24
+    slab_merge_m: NonNegative = 0.3
+    slab_min_voxels: Count = 150
+    slab_refit_growth: Positive = 0.25  # a slab is refitted when its band gained this share of voxels
+    max_slab_tilt_deg: Annotated[float, Field(gt=0, le=45)] = 5.0
+    sensor_margin_m: NonNegative = 0.2  # floors lie this far below the sensor at least, ceilings above it
+    wall_min_height_m: Positive = 1.2  # a wall spans at least this high ...
+    wall_min_width_m: Positive = 1.0  # ... and (its tiles' pieces merged) this wide
+    wall_piece_min_voxels: Count = 25
+    wall_merge_deg: Angle = 10.0  # pieces of one wall: normals within this angle, planes within plane_threshold_m
+    column_max_width_m: Positive = 1.0  # a column's footprint fits in a square this wide
+    column_min_cover: Fraction = 0.6  # ... its cells are occupied over this share of the story's height ...
+    column_min_height_m: Positive = 1.8  # ... or of this height above the floor, if less
+    beam_max_depth_m: Positive = 0.8  # beams hang at most this far under a ceiling ...
+    beam_min_length_m: Positive = 1.2  # ... run at least this long ...
+    beam_max_width_m: Positive = 0.8  # ... and are at most this wide
+    default_story_m: Positive = 2.8  # a story's height where no ceiling was found
+    min_story_m: Positive = 2.0  # a floor this close above another is furniture (desks, beds), not a story's slab
+    ground_cell_m: Positive = 1.0  # outdoors: the ground's height per cell of this size ...
+    ground_band_m: Positive = 0.2  # ... and a voxel within this height above it is ground
+    keep_confidence: Fraction = 0.9  # a confident non-structural network label on an element is kept
+
+
 class Config(_Section):
     source: SourceConfig = SourceConfig()
     registration: RegisterConfig = RegisterConfig()
@@ -366,6 +427,8 @@ class Config(_Section):
     lrgnet: LRGNetConfig = LRGNetConfig()
     cracks: CrackConfig = CrackConfig()
     drift: DriftConfig = DriftConfig()
+    report: ReportConfig = ReportConfig()
+    structure: StructureConfig = StructureConfig()
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:

@@ -20,12 +20,12 @@ from typing import Any, Final
 
 import numpy as np
 
-from aftershock.pipeline.config import Config, load_config
+from aftershock.pipeline.config import Config, RerunConfig, load_config
 from aftershock.pipeline.errors import InputError
-from aftershock.pipeline.progress import enabled
+from aftershock.pipeline.progress import enabled, working
 from aftershock.pipeline.sink import Sink
 from aftershock.pipeline.stream import StreamResult, run_stream
-from aftershock.pipeline.types import LabelledCloud, RunInfo, Scan, SourceReport
+from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Scan, SourceReport, Story
 
 SAMPLE: Final = Path(str(resources.files("aftershock.recordings") / "sample.mcap"))  # shipped in the wheel
 
@@ -191,7 +191,7 @@ def run_source(
     `batch` calls this once per mission inside a Ray task (with `extra_sinks` reporting progress)."""
     notice = notice or (lambda t: print(f"aftershock: {t}", file=sys.stderr))
     scans, info = open_scans(source, cfg, quiet)
-    on_demand = OnDemand(cfg, refine, damage, region, notice) if refine or damage else None
+    on_demand = OnDemand(cfg, refine, damage, region, notice, quiet) if refine or damage else None
     o = outputs
     sinks = make_sinks(
         cfg, o.save, o.spawn, o.connect, o.mcap_out, o.export, o.force, refine, damage, input_files(source)
@@ -224,6 +224,8 @@ def result_dict(result: StreamResult, outputs: dict[str, str], report: SourceRep
         "ate_m": result.trajectory.ate_rmse_m if result.trajectory else None,
         "trajectory": result.trajectory.as_dict() if result.trajectory else None,
         "outputs": outputs,
+        "structure_elements": s.structure_elements,  # elements the structure model found, per kind
+        "structure_notes": result.notes,  # what it could not do (no floor: the labels are the network's alone)
         "warnings": s.warnings,  # said once per run and reason: scans outside the networks' training data
     }
     return out
@@ -258,6 +260,7 @@ class OnDemand:
     damage: bool
     region: np.ndarray | None
     notice: Callable[[str], None]
+    quiet: bool = False  # no progress line on a terminal
     results: dict[str, Any] = field(default_factory=dict)
     net: Any = None
 
@@ -284,7 +287,8 @@ class OnDemand:
 
         self.notice(f"refining {len(cloud)} map points with LRGNet ({self.cfg.lrgnet.search})")
         t0 = perf_counter()
-        result = refine_cloud(cloud, self.cfg.lrgnet, record_object=1, net=self.net)
+        with working("refining with LRGNet", show=enabled(self.quiet)):
+            result = refine_cloud(cloud, self.cfg.lrgnet, record_object=1, net=self.net)
         refined = LabelledCloud(cloud.points, cloud.colors, cloud.intensity, cloud.class_ids, result.instance_ids)
         for sink in sinks:
             sink.refined(refined, result.steps)
@@ -302,7 +306,8 @@ class OnDemand:
 
         self.notice(f"assessing damage on {len(cloud)} map points")
         t0 = perf_counter()
-        report = assess_damage(cloud, self.cfg)
+        with working("assessing damage", show=enabled(self.quiet)):
+            report = assess_damage(cloud, self.cfg)
         data = report.to_json()
         data["seconds"] = round(perf_counter() - t0, 3)
         for sink in sinks:
@@ -316,3 +321,26 @@ def _jsonable(obj: object) -> object:
     if is_dataclass(obj) and not isinstance(obj, type):
         return asdict(obj)
     return str(obj)
+
+
+def save_recording(
+    path: Path,
+    cloud: LabelledCloud,
+    cfg: RerunConfig,
+    force: bool,
+    cracks: list[Crack] | None = None,
+    crack_points: LabelledCloud | None = None,
+    stories: list[Story] | None = None,
+    report: dict[str, Any] | None = None,
+) -> Path:
+    """A Rerun recording of an on-demand analysis (`cracks --save`, `drift --save`) at `path` (checked like every
+    output): the analysed cloud as the map, then the cracks and stories found on it, in the default layout."""
+    from aftershock.sinks.rerun_sink import RerunSink
+
+    sink = RerunSink(path, False, None, cfg, force)
+    try:
+        sink.end(RunSummary(points=len(cloud), map_voxels=len(cloud)), cloud)  # the map first: stories span it
+        sink.damage(cracks or [], crack_points, stories or [], report)
+    finally:
+        sink.close()
+    return path

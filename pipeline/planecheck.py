@@ -223,12 +223,16 @@ def room_planes(points: np.ndarray, planes: Sequence[Plane], sensor_z: float) ->
     )
 
 
-def agreement(class_ids: np.ndarray, planes: Sequence[Plane], cls: SemanticClass) -> float | None:
-    """Share of the planes' points (pooled) labelled `cls`; None where there is no such plane."""
+def agreement(
+    class_ids: np.ndarray, planes: Sequence[Plane], cls: SemanticClass | tuple[SemanticClass, ...]
+) -> float | None:
+    """Share of the planes' points (pooled) labelled `cls` (one of them, when several); None where there is
+    no such plane."""
     if not planes:
         return None
     idx = np.concatenate([q.indices for q in planes])
-    return float(np.mean(np.asarray(class_ids)[idx] == int(cls)))
+    wanted = [int(c) for c in (cls if isinstance(cls, tuple) else (cls,))]
+    return float(np.mean(np.isin(np.asarray(class_ids)[idx], wanted)))
 
 
 def class_shares(class_ids: np.ndarray, indices: np.ndarray | None = None) -> dict[str, float]:
@@ -259,7 +263,8 @@ def check_map(points: np.ndarray, class_ids: np.ndarray, sensor_z: float, seed: 
     room = room_planes(points, find_planes(points, seed=seed), sensor_z)
     return PlaneCheck(
         room,
-        agreement(class_ids, [room.floor] if room.floor else [], SemanticClass.FLOOR),
+        # what one stands on: the floor indoors, the ground outdoors (the structure model's class 14)
+        agreement(class_ids, [room.floor] if room.floor else [], (SemanticClass.FLOOR, SemanticClass.GROUND)),
         agreement(class_ids, [room.ceiling] if room.ceiling else [], SemanticClass.CEILING),
         agreement(class_ids, room.walls, SemanticClass.WALL),
         class_shares(class_ids),

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import sys
+import threading
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from typing import TypeVar
 
 from tqdm import tqdm
@@ -42,3 +44,27 @@ def track(
 def note(text: str) -> None:
     """A note on stderr (stdout may carry JSON): something the tool did on its own, such as dropping points."""
     print(f"aftershock: note: {text}", file=sys.stderr)
+
+
+@contextmanager
+def working(desc: str, *, show: bool | None = None, tick_s: float = 0.5) -> Iterator[None]:
+    """A line on stderr with the time a step without steps of its own has taken so far (`refining: 00:07`),
+    redrawn every `tick_s` and cleared at the end; `show=None` decides by `enabled()`."""
+    if not (enabled() if show is None else show):
+        yield
+        return
+    line = tqdm(desc=desc, bar_format="{desc}: {elapsed}", file=sys.stderr, leave=False, dynamic_ncols=True)
+    done = threading.Event()
+
+    def tick() -> None:
+        while not done.wait(tick_s):
+            line.refresh()
+
+    ticker = threading.Thread(target=tick, name="aftershock-progress", daemon=True)
+    ticker.start()
+    try:
+        yield
+    finally:
+        done.set()
+        ticker.join()
+        line.close()

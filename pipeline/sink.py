@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from aftershock.pipeline.structure.elements import Element
 from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Story
 
 
@@ -33,6 +34,10 @@ class Sink:
 
     def map_update(self, cloud: LabelledCloud, seq: int) -> None:
         """The accumulated labelled map as of scan `seq` (sent every few scans, and once at the end)."""
+
+    def structure(self, elements: list[Element], seq: int, notes: list[str]) -> None:
+        """The building's structural elements as of scan `seq` (with the map's updates, and once at the end,
+        before `end`); `notes` says what the structure model could not do (no floor found)."""
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         """LRGNet's re-segmentation of the map; `steps` = (inlier indices, neighbour indices) of one object's growth."""

@@ -44,19 +44,22 @@ from aftershock.pipeline.register import (
 )
 from aftershock.pipeline.scan_stats import DistributionCheck, Reference
 from aftershock.pipeline.sink import Sink, Stage
+from aftershock.pipeline.structure import StructureModel
+from aftershock.pipeline.structure.stage import structure_stage
 from aftershock.pipeline.trajectory import TrajectoryError, trajectory_error
 from aftershock.pipeline.types import Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan
 from aftershock.pipeline.voxel_map import VoxelMap
 
 log = logging.getLogger(__name__)
 
-STAGES: tuple[str, ...] = ("source", "register", "label", "cluster", "sinks")
+STAGES: tuple[str, ...] = ("source", "register", "label", "structure", "cluster", "sinks")
 
 
 def stage_chain(
     scans: Iterable[Scan], run: _Run, sinks: Sequence[Sink]
 ) -> tuple[Generator[Frame, None, None], Iterator[Frame]]:
-    """The stages, chained lazily, every sink told after each: source -> register -> label -> cluster. Returns
+    """The stages, chained lazily, every sink told after each: source -> register -> label (the network, then the
+    structure model's fusion) -> cluster. Returns
     the registered frames (closed to stop the reading) and the clustered ones (iterated by `_loop`)."""
     reach = labelling_range(run.cfg, run.environment)
     registered = register_stage(_timed_source(scans), run.registrar)
@@ -64,7 +67,8 @@ def stage_chain(
         registered = _ahead(registered, run.cfg.stream.ahead)
     # The raw scan goes to the sinks after its registration (which leaves it as it is): all on this thread.
     frames = _tap(_tap(registered, sinks, Stage.RAW), sinks, Stage.REGISTERED)
-    frames = _tap(label_stage(frames, run.vmap, run.labeller, reach), sinks, Stage.LABELLED)
+    labelled = structure_stage(label_stage(frames, run.vmap, run.labeller, reach), run.vmap, run.structure)
+    frames = _tap(labelled, sinks, Stage.LABELLED)
     frames = _tap(cluster_stage(frames, run.vmap, run.clusterer), sinks, Stage.CLUSTERED)
     return registered, frames
 
@@ -81,6 +85,7 @@ class StreamResult:
     true_poses: np.ndarray | None  # (F, 4, 4), NaN for frames without one; None when (almost) none had one
     trajectory: TrajectoryError | None
     notes: list[str] = field(default_factory=list)
+    structure: StructureModel | None = None  # the building's elements (None: `structure.enabled` off)
 
 
 def _first_usable(scans: Iterator[Scan], source: str) -> tuple[list[Scan], Scan]:
@@ -289,6 +294,8 @@ class _Run:
     registrar: Registrar | TruthPoses
     clusterer: InstanceClusterer
     t_start: float
+    structure: StructureModel | None = None  # None: `structure.enabled` off
+    notes: list[str] = field(default_factory=list)
     summary: RunSummary = field(default_factory=RunSummary)
     seqs: list[int] = field(default_factory=list)
     stamps: list[int] = field(default_factory=list)
@@ -329,7 +336,7 @@ def _run(
             error: BaseException | None = _loop(run, frames, sinks, notice)
         finally:
             registered.close()  # no more reading and registering while the outputs are finished
-        _finish(run, sinks, info, on_final_map, error)
+        _finish(run, sinks, info, on_final_map, error, notice)
     finally:
         with _no_interrupts():
             _close_all(sinks)
@@ -359,6 +366,8 @@ def _set_up(
         clusterer=InstanceClusterer(cfg.cluster, labeller.affinity, labeller.embedding_dim),
         t_start=t_start,
     )
+    if cfg.structure.enabled and cfg.label.oracle != "classes":  # the true classes leave nothing to fuse
+        run.structure = StructureModel(cfg.structure, environment, run.vmap.voxel_size)
     if labeller.name != FALLBACK_LABELLER and not isinstance(labeller, TruthStandIn):  # the baseline learnt nothing
         run.distribution = DistributionCheck(Reference.load(), notice)
     return run, (s for part in (skipped, [first], it) for s in part)
@@ -378,8 +387,12 @@ def _loop(
             if run.summary.scans % map_every == 0:
                 t0 = perf_counter()
                 cloud = shown_map(run.vmap, run.clusterer)
+                model = run.structure
+                elements = model.elements(run.vmap, scans=False) if model is not None else []
                 for sink in sinks:
                     sink.map_update(cloud, frame.seq)
+                    if model is not None:
+                        sink.structure(elements, frame.seq, [])
                 frame.timings_ms["sinks"] = frame.timings_ms.get("sinks", 0.0) + (perf_counter() - t0) * 1e3
                 run.last_map_seq = frame.seq
             for name in STAGES:
@@ -395,13 +408,21 @@ def _loop(
 
 
 def _finish(
-    run: _Run, sinks: Sequence[Sink], info: RunInfo, on_final_map: MapHook | None, error: BaseException | None
+    run: _Run,
+    sinks: Sequence[Sink],
+    info: RunInfo,
+    on_final_map: MapHook | None,
+    error: BaseException | None,
+    notice: Callable[[str], None] = lambda _text: None,
 ) -> None:
     """End of run: consolidation and its merges to the sinks, the on-demand analyses (not after an
     interruption), the summary, the final map and `end()` to every sink; then the first error is raised."""
     summary, vmap = run.summary, run.vmap
     if run.seqs:
         merges, changed = consolidate(vmap, run.clusterer, run.labeller, run.seqs[-1], summary)
+        if run.structure is not None:  # every changed region refitted, and the fused classes over the votes
+            error = _finish_structure(run, sinks, notice) or error
+            changed = True
         if changed:
             run.last_map_seq = None  # the map changed: the sinks get it again below
         for sink in sinks:
@@ -422,6 +443,7 @@ def _finish(
         summary.damage = info.report.damage
         summary.level_tilt_deg = run.registrar.tilt_deg
         summary.warnings = list(run.distribution.warnings) if run.distribution is not None else []
+        summary.warnings += run.notes  # the structure model's (no floor found: the network's labels alone)
         for sink in sinks:  # one sink that cannot write does not keep the others from finishing
             try:
                 if run.seqs and run.last_map_seq != run.seqs[-1]:
@@ -431,6 +453,28 @@ def _finish(
                 error = error or exc
     if error is not None:
         raise error
+
+
+def _finish_structure(run: _Run, sinks: Sequence[Sink], notice: Callable[[str], None]) -> OutputError | None:
+    """The structure model over every region still waiting, its classes into the map, one warning where it
+    found no floor (the labels are then the network's alone), and its elements to the sinks."""
+    model, vmap, error = run.structure, run.vmap, None
+    assert model is not None
+    model.finish(vmap)
+    model.apply(vmap)
+    warning = model.warning()
+    if warning:
+        notice(warning)
+        run.notes.append(warning)
+    elements = model.elements(vmap)
+    for e in elements:
+        run.summary.structure_elements[e.kind.value] = run.summary.structure_elements.get(e.kind.value, 0) + 1
+    for sink in sinks:
+        try:
+            sink.structure(elements, run.seqs[-1], run.notes)
+        except OutputError as exc:
+            error = error or exc
+    return error
 
 
 def _result(run: _Run) -> StreamResult:
@@ -453,6 +497,8 @@ def _result(run: _Run) -> StreamResult:
         poses=pose_arr,
         true_poses=truth,
         trajectory=trajectory,
+        notes=run.notes,
+        structure=run.structure,
     )
 
 

@@ -205,18 +205,21 @@ class Crack:
 
 @dataclass(slots=True)
 class Story:
-    """One floor or ceiling plane and how far it moved against the lowest plane."""
+    """One floor or ceiling plane and how far it moved against the lowest plane. Drift and tilt are None where
+    they were not measured (one slab alone has nothing to be measured against), and `reason` says why; the
+    lowest of several slabs is the reference (0 by definition, `reason` says so)."""
 
     index: int
     height_m: float
     plane: np.ndarray  # (4,) a, b, c, d with unit normal, ax + by + cz + d = 0
-    drift_x_mm: float
-    drift_y_mm: float
-    drift_mm: float
-    tilt_x_deg: float
-    tilt_y_deg: float
-    tilt_deg: float
+    drift_x_mm: float | None
+    drift_y_mm: float | None
+    drift_mm: float | None
+    tilt_x_deg: float | None
+    tilt_y_deg: float | None
+    tilt_deg: float | None
     num_points: int
+    reason: str | None = None
 
 
 @dataclass(slots=True)
@@ -265,5 +268,6 @@ class RunSummary:
     fragments: int = 0  # instances before those under the minimum object size were hidden (`instances` = shown)
     final_merges: int = 0  # instances merged by the end-of-run consolidation
     level_tilt_deg: float | None = None  # how far the first scan's z was from up (None: world not levelled)
+    structure_elements: dict[str, int] = field(default_factory=dict)  # structural elements found, per kind
     # what the run warned of once (scans outside the networks' training data, pipeline.scan_stats)
     warnings: list[str] = field(default_factory=list)

@@ -32,7 +32,9 @@ from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.outputs import FolderLock, StreamedOutput, check_output, write_atomically
 from aftershock.pipeline.pointcloud2 import matrix_to_quaternion
 from aftershock.pipeline.sink import Sink, Stage
+from aftershock.pipeline.structure.elements import Element
 from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.sinks.structure_layer import write_structure_json
 
 MAP_FILE: Final = "map.ply"
 TUM_FILE: Final = "poses_tum.txt"
@@ -40,6 +42,7 @@ KITTI_FILE: Final = "poses_kitti.txt"
 SUMMARY_FILE: Final = "summary.json"
 REFINED_FILE: Final = "refined.ply"
 DAMAGE_FILE: Final = "damage.json"
+STRUCTURE_FILE: Final = "structure.json"
 
 
 def tum_line(stamp_ns: int, pose: np.ndarray) -> str:
@@ -94,6 +97,8 @@ class FileExportSink(Sink):
         self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
         self.refined_path = check_output(self.folder / REFINED_FILE, force) if refine else None
         self.damage_path = check_output(self.folder / DAMAGE_FILE, force) if damage else None
+        self.structure_path = check_output(self.folder / STRUCTURE_FILE, force)
+        self._structure: tuple[list[Element], list[str]] | None = None
         self.force = force
         self._info: RunInfo | None = None
         self._tum: IO[str] | None = None
@@ -153,8 +158,15 @@ class FileExportSink(Sink):
         if self._info is not None:
             data["source"] = asdict(self._info)
         data["files"] = {"map": MAP_FILE, "poses_tum": TUM_FILE, "poses_kitti": KITTI_FILE}
+        if self._structure is not None:
+            elements, notes = self._structure
+            data["files"]["structure"] = STRUCTURE_FILE
+            write_atomically(self.structure_path, lambda tmp: write_structure_json(tmp, elements, notes))
         text = json.dumps(data, indent=2) + "\n"
         write_atomically(self.summary_path, lambda tmp: tmp.write_text(text))
+
+    def structure(self, elements: list[Element], seq: int, notes: list[str]) -> None:
+        self._structure = (elements, notes)  # written with the map, at the end
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         if self.refined_path is not None:

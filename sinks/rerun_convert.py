@@ -25,6 +25,7 @@ TRAJECTORY_COLOR: Final = (255, 210, 0)
 GROWTH_INLIER_COLOR: Final = (60, 220, 90)
 GROWTH_NEIGHBOUR_COLOR: Final = (255, 200, 40)
 CRACK_COLOR: Final = (255, 30, 60)
+LABEL_CLEARANCE_M: Final = 0.3  # a crack this close to a fully labelled one gets its number only
 MILD_CRACK_COLOR: Final = (255, 150, 0)
 
 # A perceptually ordered ramp (viridis stops) for intensity colouring, interpolated per channel.
@@ -244,7 +245,16 @@ def quaternion_to_z(normal: np.ndarray) -> np.ndarray:
 def crack_boxes(cracks: list[Crack]) -> rr.Boxes3D:
     """One box per crack: long side along its axis, short side across it in the surface, thin along the normal."""
     centers, half_sizes, quats, labels, colors = [], [], [], [], []
-    for c in cracks:
+    # Labels would pile up where cracks cluster: the longest of a cluster carries the full label, the others
+    # within LABEL_CLEARANCE_M of a labelled one just their number (all in the damage report).
+    order = sorted(range(len(cracks)), key=lambda k: (-cracks[k].severe, -cracks[k].length_m))
+    full: set[int] = set()
+    placed: list[np.ndarray] = []
+    for k in order:
+        if all(np.linalg.norm(cracks[k].center - p) >= LABEL_CLEARANCE_M for p in placed):
+            full.add(k)
+            placed.append(cracks[k].center)
+    for k, c in enumerate(cracks):
         axis = c.axis / max(np.linalg.norm(c.axis), 1e-12)
         normal = c.normal - axis * float(np.dot(c.normal, axis))
         normal /= max(np.linalg.norm(normal), 1e-12)
@@ -255,37 +265,50 @@ def crack_boxes(cracks: list[Crack]) -> rr.Boxes3D:
         severity = "severe" if c.severe else "hairline"
         # a width below what the scan resolves there is not a measurement: say so, never a number
         wide = f"{c.width_m * 1000:.1f} mm wide" if c.width_resolved else "width not measurable"
-        labels.append(f"crack {c.instance_id}: {c.length_m * 100:.1f} cm long, {wide} ({severity})")
+        text = f"crack {c.instance_id}: {c.length_m * 100:.1f} cm long, {wide} ({severity})"
+        labels.append(text if k in full else f"crack {c.instance_id}")
         colors.append(CRACK_COLOR if c.severe else MILD_CRACK_COLOR)
     return rr.Boxes3D(centers=centers, half_sizes=half_sizes, quaternions=quats, labels=labels, colors=colors)
 
 
 def story_layers(
     stories: list[Story], bounds: tuple[np.ndarray, np.ndarray] | None
-) -> tuple[list[tuple[int, rr.Boxes3D]], rr.Arrows3D]:
-    """Each story's plane as a thin box over the map's extent (`bounds`, else 10 m around the origin), and the
-    drift arrows (exaggerated, labelled in mm) at their centres."""
+) -> tuple[list[tuple[int, rr.Boxes3D, rr.Points3D]], rr.Arrows3D | None]:
+    """Each story's plane as a thin box over the map's extent (`bounds`, else 10 m around the origin) with its
+    label on an opaque point at the plane's corner (the box's own label would take its faint color, and at the
+    centre it would sit on the map's labels), and the drift arrows (exaggerated, labelled in mm) at their
+    centres: none for a story whose drift was not measured, nor for the reference slab (no "0.0 mm")."""
     lo, hi = bounds if bounds is not None else (np.full(3, -5.0), np.full(3, 5.0))
     cx, cy = (lo[:2] + hi[:2]) / 2
     half = np.maximum((hi[:2] - lo[:2]) / 2, 0.5)
-    planes: list[tuple[int, rr.Boxes3D]] = []
+    planes: list[tuple[int, rr.Boxes3D, rr.Points3D]] = []
     origins, vectors, labels = [], [], []
     for s in stories:
         a, b, c, d = (float(v) for v in s.plane)
         z = -(a * cx + b * cy + d) / c if abs(c) > 1e-6 else s.height_m
         center = np.array([cx, cy, z])
-        label = f"story {s.index}: drift {s.drift_mm:.1f} mm, tilt {s.tilt_deg:.2f}°"
+        measured = s.drift_x_mm is not None and s.drift_y_mm is not None and s.drift_mm is not None
+        if not measured:
+            label = f"story {s.index}: drift and tilt not measured"
+        elif s.reason is not None:
+            label = f"story {s.index}: reference level"
+        else:
+            label = f"story {s.index}: drift {s.drift_mm:.1f} mm, tilt {s.tilt_deg:.2f}°"
         box = rr.Boxes3D(
             centers=[center],
             half_sizes=[[half[0], half[1], 0.005]],
             quaternions=[rr.Quaternion(xyzw=quaternion_to_z(np.array([a, b, c])))],
             colors=[(120, 180, 255, 60)],
             fill_mode="solid",
-            labels=[label],
         )
-        planes.append((s.index, box))
+        corner = np.array([cx - half[0], cy - half[1], z])
+        tag = rr.Points3D([corner], colors=[(150, 200, 255)], radii=0.02, labels=[label], show_labels=True)
+        planes.append((s.index, box, tag))
+        if not measured or s.reason is not None:
+            continue
+        assert s.drift_x_mm is not None and s.drift_y_mm is not None and s.drift_mm is not None
         origins.append(center)
         vectors.append([s.drift_x_mm * DRIFT_ARROW_M_PER_MM, s.drift_y_mm * DRIFT_ARROW_M_PER_MM, 0.0])
         labels.append(f"{s.drift_mm:.1f} mm")
-    arrows = rr.Arrows3D(origins=origins, vectors=vectors, labels=labels, colors=(255, 90, 90))
+    arrows = rr.Arrows3D(origins=origins, vectors=vectors, labels=labels, colors=(255, 90, 90)) if origins else None
     return planes, arrows

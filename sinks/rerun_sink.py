@@ -51,6 +51,7 @@ import rerun as rr
 
 from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.sink import Sink, Stage
+from aftershock.pipeline.structure.elements import Element
 from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan, Story
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks import rerun_convert as C
@@ -58,6 +59,7 @@ from aftershock.sinks.rerun_convert import EmbeddingColors
 from aftershock.sinks.rerun_output import RecordingOutput, log_id_of, recording_id_for
 from aftershock.sinks.rerun_stats import ScanScalars
 from aftershock.sinks.rerun_tiles import MapTiles
+from aftershock.sinks.structure_layer import log_structure
 
 __all__ = ["EmbeddingColors", "RerunSink", "log_id_of", "recording_id_for"]
 
@@ -124,6 +126,9 @@ class RerunSink(Sink):
         log_topic = self._info.topic if self._info.raw_in_log else None
         self.out.start(L.default_blueprint(log_topic=log_topic))
         self.rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, C.annotation_context(), static=True)
+        discs, names = L.legend()
+        self.rec.log(L.LEGEND_SWATCHES, discs, static=True)
+        self.rec.log(L.LEGEND_NAMES, names, static=True)
 
     def stage(self, frame: Frame, stage: Stage) -> None:
         self._start()
@@ -145,6 +150,12 @@ class RerunSink(Sink):
         if self._scan is None or self._scan.seq != seq:
             self.rec.set_time(L.SCAN_TIMELINE, sequence=seq)
         self._log_map(cloud)
+
+    def structure(self, elements: list[Element], seq: int, notes: list[str]) -> None:
+        self._start()
+        if self._scan is None or self._scan.seq != seq:
+            self.rec.set_time(L.SCAN_TIMELINE, sequence=seq)
+        log_structure(self.rec, elements)
 
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         self._start()
@@ -180,9 +191,11 @@ class RerunSink(Sink):
             self.rec.log(L.CRACKS, C.crack_boxes(cracks), static=static)
         if stories:
             planes, arrows = C.story_layers(stories, self._tiles.bounds)
-            for index, box in planes:
+            for index, box, tag in planes:
                 self.rec.log(f"{L.STORIES}/s{index}", box, static=static)
-            self.rec.log(L.DRIFT, arrows, static=static)
+                self.rec.log(f"{L.STORIES}/s{index}/label", tag, static=static)
+            if arrows is not None:
+                self.rec.log(L.DRIFT, arrows, static=static)
 
     def merges(self, merges: list[InstanceMerge], seq: int) -> None:
         for m in merges:

@@ -172,7 +172,9 @@ def test_local_ray_on_loopback_and_ctrl_c(tmp_path: Path) -> None:
     report = json.loads((small / "damage.json").read_text())  # --damage: the report and its figures in the index
     done = rows[small.name]
     assert done["cracks"] == len(report["cracks"]) and done["severe_cracks"] == report["severe_cracks"]
-    assert done["damage"] == str(small / "damage.json") and (done["worst_drift_mm"] is None) == (not report["stories"])
+    assert done["damage"] == str(small / "damage.json") and (done["worst_drift_mm"] is None) == all(
+        st["drift_mm"] is None for st in report["stories"]
+    )  # not measured (one slab) is null in the index, never 0
     assert rows[big.name]["status"] == "interrupted"
     assert completed_row(big, rows[big.name]["source"], rows[small.name]["config_hash"]) is None  # redone next time
     assert "interrupted" in stdout

@@ -7,7 +7,8 @@ Layers, bottom to top (a module imports only from layers below it, or from its o
 3. the stream and the sink interface it owns
 4. sinks, which implement that interface
 5. the mission library: one mission from source to sinks and the analyses of its final map (pipeline.mission)
-6. batch: many missions on Ray (pipeline.batch), each run by the mission library
+6. batch: many missions on Ray (pipeline.batch), each run by the mission library; the site report
+   (pipeline.report), which reads what missions wrote
 7. the command line: cli, commands, and the training pipelines (they drive the simulator and the stages) --
    thin: a command may import the library below, nothing below imports a command
 """
@@ -43,6 +44,7 @@ STAGES: Final = tuple(
         "cluster",
         "refine",
         "damage",
+        "structure",
         "trajectory",
         "scan_stats",
     )
@@ -90,6 +92,8 @@ def layer_of(module: str) -> tuple[int, str]:
         return 5, "mission"
     if under(("pipeline.batch",)):
         return 6, "batch"
+    if under(("pipeline.report",)):
+        return 6, "report"
     if under(("pipeline.cli", "pipeline.__main__", "pipeline.commands")):
         return 7, "cli"
     raise AssertionError(f"{module} has no layer: add it to tests/test_layers.py")

@@ -339,7 +339,7 @@ def test_ctrl_c_on_the_command_line(tmp_path: Path) -> None:
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
-    assert "interrupted after" in stdout and "aftershock view " in stdout
+    assert "interrupted after" in stdout and "open it with its log: " in stdout and " view " in stdout
     scans = int(stdout.split("interrupted after ")[1].split()[0])
     assert 0 < scans < 300
     rec = read_rrd(out)

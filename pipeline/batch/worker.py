@@ -271,8 +271,9 @@ def _fill_row(row: dict[str, Any], result: Any, extra: dict[str, Any], folder: P
         row |= {
             "cracks": len(d.get("cracks", [])),
             "severe_cracks": int(d.get("severe_cracks", 0)),
-            "worst_drift_mm": max((abs(st["drift_mm"]) for st in stories), default=None),
-            "worst_tilt_deg": max((abs(st["tilt_deg"]) for st in stories), default=None),
+            # not measured (one slab) is null, never 0
+            "worst_drift_mm": max((abs(st["drift_mm"]) for st in stories if st["drift_mm"] is not None), default=None),
+            "worst_tilt_deg": max((abs(st["tilt_deg"]) for st in stories if st["tilt_deg"] is not None), default=None),
             "damage": str(folder / DAMAGE_FILE),
         }
 

@@ -57,7 +57,8 @@ def cracks(
     ),
     box: str | None = typer.Option(None, help="Only the points in x0,y0,z0,x1,y1,z1 (metres)."),
     report: Path | None = typer.Option(None, help="Also write the JSON result to this file."),
-    force: bool = typer.Option(False, help="Overwrite the report file."),
+    save: Path | None = typer.Option(None, "--save", help="Also write a Rerun recording (.rrd) of the element."),
+    force: bool = typer.Option(False, help="Overwrite the report file and --save's recording."),
     config: Path | None = typer.Option(None, help="Config file (TOML/JSON)."),
     set_: list[str] | None = typer.Option(None, "--set", help="Override a setting: cracks.smooth_cell_m=0.02"),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (nothing else on stdout)."),
@@ -70,8 +71,9 @@ def cracks(
     cfg = load_config(config, set_)
     if resolution is not None and not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"--resolution must be a positive number of metres, not {resolution}")
-    if report is not None:
-        check_output(report, force, inputs=[p for p in (input, truth) if p is not None])
+    for out_path in (report, save):
+        if out_path is not None:
+            check_output(out_path, force, inputs=[p for p in (input, truth) if p is not None])
     cloud = read_cloud(input)
     mask = load_mask(truth, len(cloud)) if truth is not None else None
     # Non-finite vertices are dropped here, at the input, so no analysis below ever meets one.
@@ -88,6 +90,15 @@ def cracks(
     except InputError as exc:
         raise InputError(str(exc), input) from None
     out = {"input": str(input)} | result.to_json()
+    if save is not None:
+        from aftershock.pipeline.mission import save_recording
+
+        points = result.cloud.select(result.mask) if result.mask.any() else None
+        if points is not None:
+            points.instance_ids = result.crack_ids[result.mask].astype("uint32")
+        view = cfg.rerun.model_copy(update={"map_voxel_m": result.resolution_m})  # the element as evaluated
+        save_recording(save, result.cloud, view, True, result.cracks, points, report=out)  # checked above
+        out["recording"] = str(save)
     if report is not None:
         text = json.dumps(out, indent=2)
         write_atomically(report, lambda tmp: tmp.write_text(text))
@@ -128,3 +139,7 @@ def cracks(
             found += f"; median error length {s.median_length_error_m:.3f} m, "
             found += f"width {s.median_width_error_m * 1000:.1f} mm"
         print(found)
+    if save is not None:  # the hint last
+        from aftershock.pipeline.commands.run import rerun_program
+
+        print(f"open the recording with: {rerun_program()} {save}")

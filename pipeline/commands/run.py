@@ -6,6 +6,8 @@ starts; Ctrl-C stops the run and leaves valid outputs of everything processed (e
 
 from __future__ import annotations
 
+import shlex
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -66,14 +68,41 @@ def print_human(result: StreamResult, outputs: dict[str, str], info: RunInfo | N
         print(f"the log ended early: {s.damage}")
     for text in s.warnings:
         print(f"warning: {text}")
-    if "rerun" in outputs:
-        if info is not None and info.raw_in_log:
-            print(f"open it with its log: aftershock view {info.source} {outputs['rerun']}")
-        else:
-            print(f"open the recording with: rerun {outputs['rerun']}")
+
+
+def program() -> str:
+    """`aftershock` as the user can run it from here: the bare name when that is what is on PATH, else the path
+    it was started by (`.venv/bin/aftershock` outside the venv), else `python -m aftershock.pipeline`."""
+    started = Path(sys.argv[0]) if sys.argv and sys.argv[0] else None
+    if started is not None and started.name == "aftershock":
+        on_path = shutil.which("aftershock")
+        if on_path is not None and Path(on_path).resolve() == started.resolve():
+            return "aftershock"
+        return shlex.quote(str(started))
+    return f"{shlex.quote(sys.executable)} -m aftershock.pipeline"
+
+
+def rerun_program() -> str:
+    """The `rerun` viewer command: on PATH, or the one installed beside this Python (a venv's bin/)."""
+    if shutil.which("rerun") is not None:
+        return "rerun"
+    beside = Path(sys.executable).parent / "rerun"
+    return shlex.quote(str(beside)) if beside.is_file() else "rerun"
+
+
+def print_hints(outputs: dict[str, str], info: RunInfo | None = None) -> None:
+    """What was written and how to open it, as commands that work as printed; printed last."""
     for key in ("mcap", "export"):
         if key in outputs:
             print(f"{key}: {outputs[key]}")
+    if "rerun" in outputs:
+        rrd = shlex.quote(outputs["rerun"])
+        if info is not None and info.raw_in_log:
+            print(f"open it with its log: {program()} view {shlex.quote(info.source)} {rrd}")
+        else:
+            print(f"open the recording with: {rerun_program()} {rrd}")
+    if "export" in outputs:
+        print(f"site report: {program()} report {shlex.quote(outputs['export'])}")
 
 
 def print_on_demand(results: dict[str, Any]) -> None:
@@ -84,11 +113,10 @@ def print_on_demand(results: dict[str, Any]) -> None:
         d = results["damage"]
         severe = d.get("severe_cracks", 0)
         print(f"damage: {len(d['cracks'])} cracks ({severe} severe), {len(d['stories'])} story planes")
+        from aftershock.pipeline.damage.report import story_text
+
         for story in d["stories"]:
-            print(
-                f"  story {story['index']} at {story['height_m']:.2f} m: drift {story['drift_mm']:.1f} mm, "
-                f"tilt {story['tilt_deg']:.3f}°"
-            )
+            print(f"  story {story['index']} at {story['height_m']:.2f} m: {story_text(story)}")
         for note in d.get("notes", []):
             print(f"  note: {note}")
 
@@ -129,6 +157,8 @@ def run(
     src = resolve_source(source)
     notice = (lambda _t: None) if quiet else (lambda t: print(f"aftershock: {t}", file=sys.stderr))
     asked = Outputs(save, spawn, connect, mcap_out, export, force)
+    if not (asked.paths() or spawn or connect):
+        notice("nothing will be saved: add --export DIR (map, poses, summary), --save FILE.rrd or --spawn")
     result, extra, info = run_source(src, cfg, asked, refine, damage, box, quiet, notice)
     outputs = asked.paths()
     if as_json:
@@ -136,5 +166,6 @@ def run(
     else:
         print_human(result, outputs, info)
         print_on_demand(extra)
+        print_hints(outputs, info)
     if result.summary.interrupted:
         raise typer.Exit(130)

@@ -27,6 +27,8 @@ from aftershock.pipeline.types import Story
 _MIN_SLAB_POINTS: Final = 50
 _RANSAC_SCORE_POINTS: Final = 4000  # hypotheses are scored on a sample; the winner is refined on all points
 _MIN_END_POINTS: Final = 20  # points in the window next to a wall's foot or head
+NOT_MEASURED_ONE_SLAB: Final = "one slab found: drift and tilt need a second slab to be measured against"
+REFERENCE_SLAB: Final = "the lowest slab: the reference the other slabs' drift and tilt are measured against"
 
 
 class Gravity(StrEnum):
@@ -52,6 +54,14 @@ def slab_bands(
     lo = float(z.min())
     edges = lo + bin_m * np.arange(int(np.ceil((z.max() - lo) / bin_m)) + 2)
     counts, _ = np.histogram(z, bins=edges)
+    return bands_of_counts(counts, edges, ratio, neighbourhood, merge_m)
+
+
+def bands_of_counts(
+    counts: np.ndarray, edges: np.ndarray, ratio: float, neighbourhood: int, merge_m: float
+) -> list[tuple[float, float]]:
+    """`slab_bands` of a height histogram (`counts` per bin between `edges`): the one test of a story slab,
+    shared by drift and the structure model (which keeps its histogram up to date as the map grows)."""
     size = 2 * (neighbourhood // 2) + 1
     local = median_filter(counts.astype(np.float64), size=size, mode="constant", cval=0.0)
     # Around an empty stretch the median is 0; a slab then needs at least the median of all non-empty bins.
@@ -89,6 +99,8 @@ def ransac_plane(
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(normals, axis=1)
     good = norm > 1e-12
+    if not good.any():  # every triple drawn lies on one line: no plane to find
+        return np.array([0.0, 0.0, 1.0, 0.0]), np.zeros(n, bool)
     normals, tri = normals[good] / norm[good, None], tri[good]
     d = -np.einsum("ij,ij->i", normals, tri[:, 0])
     sample = points[rng.choice(n, size=min(n, _RANSAC_SCORE_POINTS), replace=False)]
@@ -360,7 +372,7 @@ def _thicknesses(slabs: list[list[_Surface]], centre: np.ndarray) -> np.ndarray:
 
 def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
     """Stories (lowest first) of a structure: each slab plane with its drift (mm) and tilt (°) against the
-    lowest plane. Fewer than two slabs gives the slabs found with zero drift, and a note."""
+    lowest plane. One slab alone comes back with drift and tilt None and its `reason`, and a note."""
     gravity = Gravity(cfg.gravity)
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     notes: list[str] = []
@@ -443,4 +455,11 @@ def measure_drift(points: np.ndarray, cfg: DriftConfig) -> DriftResult:
                 num_points=sum(s.points for s in surfaces),
             )
         )
+    if len(stories) == 1:  # one slab alone: nothing was measured, which is not a drift of 0
+        only = stories[0]
+        only.drift_x_mm = only.drift_y_mm = only.drift_mm = None
+        only.tilt_x_deg = only.tilt_y_deg = only.tilt_deg = None
+        only.reason = NOT_MEASURED_ONE_SLAB
+    elif stories:
+        stories[0].reason = REFERENCE_SLAB
     return DriftResult(stories, gravity.value, bands, notes)

@@ -346,18 +346,34 @@ class DamageReport:
 
 
 def story_json(s: Story) -> dict[str, Any]:
+    """A story as JSON: drift and tilt null where not measured, with the `reason`."""
+
+    def r(x: float | None, nd: int) -> float | None:
+        return None if x is None else round(x, nd)
+
     return {
         "index": s.index,
         "height_m": round(s.height_m, 4),
         "plane": [round(float(v), 6) for v in s.plane],
-        "drift_x_mm": round(s.drift_x_mm, 2),
-        "drift_y_mm": round(s.drift_y_mm, 2),
-        "drift_mm": round(s.drift_mm, 2),
-        "tilt_x_deg": round(s.tilt_x_deg, 4),
-        "tilt_y_deg": round(s.tilt_y_deg, 4),
-        "tilt_deg": round(s.tilt_deg, 4),
+        "drift_x_mm": r(s.drift_x_mm, 2),
+        "drift_y_mm": r(s.drift_y_mm, 2),
+        "drift_mm": r(s.drift_mm, 2),
+        "tilt_x_deg": r(s.tilt_x_deg, 4),
+        "tilt_y_deg": r(s.tilt_y_deg, 4),
+        "tilt_deg": r(s.tilt_deg, 4),
         "points": s.num_points,
+        "reason": s.reason,
     }
+
+
+def story_text(s: Story | dict[str, Any]) -> str:
+    """`drift 12.3 mm, tilt 0.120°`, or `drift and tilt not measured (why)`, or the reference slab's own words."""
+    get = s.get if isinstance(s, dict) else lambda k: getattr(s, k)
+    if get("drift_mm") is None or get("tilt_deg") is None:
+        return f"drift and tilt not measured ({get('reason') or 'no reason given'})"
+    if get("index") == 0 and get("reason"):
+        return "reference level (drift and tilt are measured against it)"
+    return f"drift {get('drift_mm'):.1f} mm, tilt {get('tilt_deg'):.3f}°"
 
 
 def assess_damage(cloud: LabelledCloud, cfg: Config, box: np.ndarray | None = None) -> DamageReport:

@@ -1,0 +1,926 @@
+"""The structure model: a building's slabs, walls, columns and beams (the ground outdoors) found from geometry
+and gravity in the levelled voxel map as it grows, and the labels they decide.
+
+Geometry decides what geometry can (issue #28): a voxel on a confirmed element takes the element's class unless
+the network is confident of something that lies on it (debris on a floor, a board on a wall); the rest keep
+the network's label, checked against the structure (no ceiling below the sensor, no floor above it, a ceiling
+needs an overhead slab; outdoors there is ground, never floor or ceiling).
+
+Incremental and amortised:
+- story slabs: a height histogram of the map, updated with each scan's new voxels; its density bands are the
+  one slab test of `pipeline.damage.drift` (`bands_of_counts`), and a band's plane is refitted (RANSAC) only
+  when the band grew by a share (`slab_refit_growth`);
+- walls, columns and beams: per square tile of the map (`tile_m`); a tile is refitted when it gained
+  `min_new_voxels`, at most `tiles_per_scan` tiles a scan (the most changed first), every changed tile at
+  `finish()`. Walls are vertical RANSAC planes per tile, merged across tiles into walls (coplanar, touching);
+  columns are compact footprints occupied over most of the story's height; beams are elongated footprints
+  occupied just under a ceiling and open below;
+- new voxels are checked against the elements found so far as they arrive (a vectorised test per element).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from itertools import pairwise
+from typing import Final
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from aftershock.pipeline.classes import UNLABELLED, SemanticClass
+from aftershock.pipeline.config import Environment, StructureConfig
+from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
+from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
+from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
+
+log = logging.getLogger(__name__)
+
+_HIST_BINS: Final = 1 << 13  # height histogram: enough bins for +-200 m at 5 cm
+_SLAB_SAMPLE: Final = 2000  # a slab plane is fitted on at most this many voxels of its band
+_SLAB_ITERATIONS: Final = 100  # a slab is the largest plane of its thin band
+_WALL_ITERATIONS: Final = 80  # a tile's few thousand voxels hold a handful of walls
+_LINE_SCORE_POINTS: Final = 1000
+_CREDIT_SCANS: Final = 10  # unspent refit time carries over for at most this many scans
+_WALL_PLANES: Final = 6  # vertical planes tried per tile
+_WALL_GAP_M: Final = 0.5  # pieces of one wall leave gaps no wider than this (doors are found as openings)
+_SURFACE_CELL_M: Final = 0.2  # a slab's voxels fill the cells of this size they cover ...
+_MIN_INTERIOR: Final = 0.25  # ... at least this share of them inside the surface (not on its outline)
+_FACE_CELL_M: Final = 0.5  # a wall (seen by scan lines far apart on it) fills the cells of this size ...
+_MIN_FACE_FILL: Final = 0.4  # ... of its extent at least this share (a strip through furniture or the ground does not)
+_SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
+_MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
+_SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its extent (it grows as it is seen)
+_RING_CELLS: Final = 2  # a column stands free: the cells this far around its footprint are mostly empty
+_RING_MAX_SHARE: Final = 0.35
+_LINE_MAX_M: Final = 0.6  # a footprint on one line (one face seen) longer than this is a wall stub
+NON_STRUCTURAL: Final = np.ones(1 << 16, bool)  # per class id: may lie on an element (table, debris, board ...)
+NON_STRUCTURAL[[c.value for c in CLASS_OF.values()]] = False
+NON_STRUCTURAL[UNLABELLED] = False
+
+
+@dataclass(slots=True)
+class _Slab:
+    id: int
+    kind: Kind
+    band: tuple[float, float]
+    plane: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    fitted_count: int  # voxels in its band when last fitted
+    voxels: int = 0  # on its plane when fitted
+
+    def height_at(self, xy: np.ndarray) -> np.ndarray:
+        return -(xy @ self.plane[:2] + self.plane[3]) / self.plane[2]
+
+
+@dataclass(slots=True)
+class _Piece:
+    """A wall's piece in one tile: a vertical plane and the voxels on it."""
+
+    id: int
+    tile: int
+    normal: np.ndarray  # (2,) horizontal unit normal
+    offset: float  # n . xy + offset = 0
+    u: tuple[float, float]  # extent along the wall direction (-n_y, n_x)
+    z: tuple[float, float]
+    rows: np.ndarray
+
+
+@dataclass(slots=True)
+class _Tile:
+    chunks: list[np.ndarray] = field(default_factory=list)
+    pending: int = 0  # voxels added since the last fit
+    elements: list[int] = field(default_factory=list)  # column and beam ids found in it
+    pieces: list[int] = field(default_factory=list)
+
+    def rows(self) -> np.ndarray:
+        if len(self.chunks) > 1:
+            self.chunks = [np.concatenate(self.chunks)]
+        return self.chunks[0] if self.chunks else np.zeros(0, np.int64)
+
+
+def _interior_share(xy: np.ndarray, cell_m: float = _SURFACE_CELL_M) -> float:
+    """Share of the occupied cells (of `cell_m`) of points whose four neighbours are occupied too: a surface
+    seen whole is mostly interior, lines (scan rings, a wall's foot) have none."""
+    if not len(xy):
+        return 0.0
+    c = np.floor(xy / cell_m).astype(np.int64)
+    c -= c.min(axis=0)
+    shape = c.max(axis=0) + 1
+    grid = np.zeros(shape + 2, bool)
+    grid[c[:, 0] + 1, c[:, 1] + 1] = True
+    inner = grid[1:-1, 1:-1] & grid[:-2, 1:-1] & grid[2:, 1:-1] & grid[1:-1, :-2] & grid[1:-1, 2:]
+    return float(inner.sum() / max(grid.sum(), 1))
+
+
+def _fill_share(uv: np.ndarray, cell_m: float) -> float:
+    """Share of the cells (of `cell_m`) in the extent of points that hold any."""
+    c = np.floor(uv / cell_m).astype(np.int64)
+    c -= c.min(axis=0)
+    shape = c.max(axis=0) + 1
+    return float(len(np.unique(c[:, 0] * shape[1] + c[:, 1])) / (shape[0] * shape[1]))
+
+
+def ransac_line(
+    xy: np.ndarray, threshold_m: float, iterations: int, rng: np.random.Generator
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """The line (unit normal, offset: n . xy + offset = 0) most points lie within `threshold_m` of, and that
+    mask: a vertical plane of the levelled map, seen from above. All hypotheses scored at once on a sample, the
+    best refined by a principal direction of its inliers."""
+    n = len(xy)
+    i, j = rng.integers(0, n, size=(2, iterations))
+    d = xy[j] - xy[i]
+    length = np.hypot(d[:, 0], d[:, 1])
+    good = length > 2 * threshold_m
+    if not good.any():
+        return None, np.zeros(n, bool)
+    normal = np.c_[-d[good, 1], d[good, 0]] / length[good, None]
+    offset = -np.einsum("ij,ij->i", normal, xy[i[good]])
+    sample = xy[rng.choice(n, size=min(n, _LINE_SCORE_POINTS), replace=False)]
+    best = int(np.argmax((np.abs(sample @ normal.T + offset) < threshold_m).sum(axis=0)))
+    nb, ob = normal[best], float(offset[best])
+    for _ in range(2):  # refine on the inliers
+        on = np.abs(xy @ nb + ob) < threshold_m
+        if on.sum() < 3:
+            break
+        centre = xy[on].mean(axis=0)
+        _, vec = np.linalg.eigh(np.cov((xy[on] - centre).T))
+        nb = vec[:, 0]
+        ob = float(-nb @ centre)
+    return np.r_[nb, ob], np.abs(xy @ nb + ob) < threshold_m
+
+
+class StructureModel:
+    """See the module docstring. `update(vmap, sensor)` after each scan's labelling; `finish(vmap)` at the end."""
+
+    def __init__(self, cfg: StructureConfig, environment: Environment, voxel_size: float) -> None:
+        self.cfg = cfg
+        self.outdoor = environment is Environment.OUTDOOR
+        self.voxel = float(voxel_size)
+        self.n = 0
+        cap = 4096
+        self.net_cls = np.full(cap, UNLABELLED, np.uint16)  # the network's class and score when the voxel opened
+        self.net_score = np.zeros(cap, np.float32)
+        self.sensor_z = np.zeros(cap, np.float32)  # height of the sensor that opened the voxel
+        self.tile_of = np.zeros(cap, np.int32)
+        self.zbin = np.zeros(cap, np.int32)
+        self.elem = np.full(cap, -1, np.int32)  # element (slab, wall piece, column, beam) the voxel lies on
+        self.kind_cls = np.full(cap, UNLABELLED, np.uint16)  # that element's class (UNLABELLED: none)
+        self.fused = np.full(cap, UNLABELLED, np.uint16)  # the class the structure gives (UNLABELLED: no say)
+        self.hist = np.zeros(_HIST_BINS, np.int64)
+        self.hist_base: int | None = None
+        self.slabs: list[_Slab] = []
+        self.slab_search_n = 0
+        self.tiles: list[_Tile] = []
+        self.tile_keys = KeyTable()
+        self.tile_xy = np.zeros((0, 2), np.int64)
+        self.pieces: dict[int, _Piece] = {}
+        self.wall_of_piece: dict[int, int] = {}  # piece id -> wall id (confirmed walls only)
+        self.columns: dict[int, Element] = {}
+        self.beams: dict[int, Element] = {}
+        self.ground_keys = KeyTable()
+        self.ground_min = np.zeros(0, np.float64)
+        self.next_id = 1
+        self.arrived = 0  # voxels taken so far, and how many of them lay on an element already (the share a
+        self.explained = 0  # network could skip)
+        self.final = False  # finish() ran: every slab band and tile was looked at
+        self.credit = 0  # voxels the refits of this scan may still go through (amortised budget)
+        self.refit_voxels = 0  # voxels the refits went through so far
+        self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
+        self.last_tiles: list[tuple[int, int]] = []
+
+    # ------------------------------------------------------------------------------------------ bookkeeping
+
+    def _new_id(self) -> int:
+        self.next_id += 1
+        return self.next_id - 1
+
+    def _grow(self, n: int) -> None:
+        if n <= len(self.net_cls):
+            return
+        cap = max(n, 2 * len(self.net_cls))
+        for name in ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused"):
+            old = getattr(self, name)
+            fill = {"net_cls": UNLABELLED, "elem": -1, "kind_cls": UNLABELLED, "fused": UNLABELLED}.get(name, 0)
+            arr = np.full(cap, fill, old.dtype)
+            arr[: len(old)] = old
+            setattr(self, name, arr)
+
+    @property
+    def floors(self) -> list[_Slab]:
+        return [s for s in self.slabs if s.kind is Kind.FLOOR]
+
+    @property
+    def has_floor(self) -> bool:
+        """Indoors a floor slab, outdoors ground cells: without either the network labels alone."""
+        return bool(len(self.ground_min)) if self.outdoor else bool(self.floors)
+
+    # ------------------------------------------------------------------------------------------ per scan
+
+    def update(self, vmap: VoxelMap, sensor_z: float, finishing: bool = False) -> np.ndarray:
+        """Take the voxels opened since the last call (labelled by the network), refit what changed within
+        the budget, and return the rows whose structure class may have changed."""
+        first, n = self.n, len(vmap)
+        self._grow(n)
+        new = np.arange(first, n, dtype=np.int64)
+        changed = [new]
+        if len(new):
+            self.net_cls[new] = vmap.class_ids[new]
+            self.net_score[new] = vmap.scores[new]
+            self.sensor_z[new] = sensor_z
+            self._add_rows(vmap, new)
+        self.n = n
+        changed.append(self._update_slabs(vmap, finishing))
+        if self.outdoor:
+            changed.append(self._ground_rows(vmap, new))
+        else:
+            changed.append(self._join_elements(vmap, new))
+        if not finishing:
+            self.arrived += len(new)
+            self.explained += int(np.count_nonzero(self.kind_cls[new] != UNLABELLED))
+        changed.extend(self._refit_tiles(vmap, finishing))
+        rows = np.unique(np.concatenate(changed)) if len(changed) > 1 else new
+        self._fuse(vmap, rows)
+        return rows
+
+    def finish(self, vmap: VoxelMap) -> None:
+        """End of run: every changed slab band and tile refitted, whatever the budget, and every voxel fused."""
+        self.slab_search_n = 0
+        self.final = True
+        self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
+        self._fuse(vmap, np.arange(self.n, dtype=np.int64))
+
+    def apply(self, vmap: VoxelMap) -> None:
+        """Write the fused classes into the map (the network's instance votes rewrite classes every scan)."""
+        fused = self.fused[: self.n]
+        where = fused != UNLABELLED
+        vmap.class_ids[: self.n][where] = fused[where]
+
+    def _add_rows(self, vmap: VoxelMap, rows: np.ndarray) -> None:
+        pos = vmap.positions[rows]
+        zb = np.floor(pos[:, 2] / self.cfg.slab_bin_m).astype(np.int64)
+        if self.hist_base is None:
+            self.hist_base = int(np.median(zb)) - _HIST_BINS // 2
+        zb = np.clip(zb - self.hist_base, 0, _HIST_BINS - 1)
+        self.zbin[rows] = zb
+        np.add.at(self.hist, zb, 1)
+        txy = np.floor(pos[:, :2] / self.cfg.tile_m).astype(np.int64)
+        keys = pack_keys(np.c_[txy, np.zeros(len(txy), np.int64)])
+        uniq, inv = np.unique(keys, return_inverse=True)
+        idx = self.tile_keys.find(uniq)
+        fresh = idx < 0
+        if fresh.any():
+            idx[fresh] = np.arange(len(self.tiles), len(self.tiles) + fresh.sum())
+            self.tile_keys.insert(uniq[fresh], idx[fresh])
+            first_of = np.unique(inv, return_index=True)[1]
+            self.tile_xy = np.concatenate([self.tile_xy, txy[first_of][fresh]])
+            self.tiles.extend(_Tile() for _ in range(int(fresh.sum())))
+        tile = idx[inv.ravel()]
+        self.tile_of[rows] = tile
+        order = np.argsort(tile, kind="stable")
+        bounds = np.r_[0, np.flatnonzero(np.diff(tile[order])) + 1, len(order)]
+        for a, b in pairwise(bounds):  # one iteration per tile touched
+            t = self.tiles[int(tile[order[a]])]
+            t.chunks.append(rows[order[a:b]])
+            t.pending += int(b - a)
+        if self.outdoor:
+            gkeys = self._ground_keys(pos)
+            uniq, inv = np.unique(gkeys, return_inverse=True)
+            gidx = self.ground_keys.find(uniq)
+            fresh = gidx < 0
+            gidx[fresh] = np.arange(len(self.ground_min), len(self.ground_min) + fresh.sum())
+            self.ground_keys.insert(uniq[fresh], gidx[fresh])
+            self.ground_min = np.r_[self.ground_min, np.full(int(fresh.sum()), np.inf)]
+            np.minimum.at(self.ground_min, gidx[inv.ravel()], pos[:, 2])
+
+    # ------------------------------------------------------------------------------------------ slabs
+
+    def _update_slabs(self, vmap: VoxelMap, finishing: bool) -> np.ndarray:
+        cfg = self.cfg
+        if self.outdoor or self.n < cfg.slab_min_voxels or self.hist_base is None:
+            return np.zeros(0, np.int64)
+        if not finishing and self.n < 1.25 * self.slab_search_n:
+            return np.zeros(0, np.int64)  # the histogram has hardly changed since the last look
+        self.slab_search_n = self.n
+        used = np.flatnonzero(self.hist)
+        lo, hi = int(used[0]), int(used[-1]) + 1
+        edges = (self.hist_base + np.arange(lo, hi + 1)) * cfg.slab_bin_m
+        bands = bands_of_counts(
+            self.hist[lo:hi], edges, cfg.slab_density_ratio, cfg.slab_neighbourhood_bins, cfg.slab_merge_m
+        )
+        changed: list[np.ndarray] = [np.zeros(0, np.int64)]
+        refits = 0
+        for band in bands:  # one iteration per slab band (a handful)
+            b0 = int(np.floor(band[0] / cfg.slab_bin_m)) - self.hist_base
+            b1 = int(np.ceil(band[1] / cfg.slab_bin_m)) - self.hist_base
+            count = int(self.hist[max(b0, 0) : b1].sum())
+            old = [s for s in self.slabs if s.band[0] < band[1] and band[0] < s.band[1]]
+            if old and count < (1 + cfg.slab_refit_growth) * max(s.fitted_count for s in old):
+                continue
+            if refits >= _SLAB_FITS_PER_SCAN and not finishing:
+                break  # the rest wait their turn
+            refits += 1
+            for s in old:
+                changed.append(self._drop_slab(s))
+            changed.append(self._fit_band(vmap, band, b0, b1, count))
+        if self.slabs:  # a slab covers a floor: a small horizontal patch (a table top, a bed) is not one
+            sizes = {s.id: s.voxels for s in self.slabs}
+            largest = max(sizes.values())
+            for s in [s for s in self.slabs if sizes[s.id] < _MIN_SLAB_SHARE * largest]:
+                changed.append(self._drop_slab(s))
+            # nor is a floor less than a story above another (desks in rows make a dense band of their own)
+            heights = {s.id: float(np.median([s.lo[2], s.hi[2]])) for s in self.floors}
+            for s in self.floors:
+                if any(0 < heights[s.id] - h < cfg.min_story_m for h in heights.values()):
+                    changed.append(self._drop_slab(s))
+        return np.concatenate(changed)
+
+    def _drop_slab(self, slab: _Slab) -> np.ndarray:
+        rows = np.flatnonzero(self.elem[: self.n] == slab.id)
+        self.elem[rows] = -1
+        self.kind_cls[rows] = UNLABELLED
+        self.slabs.remove(slab)
+        return rows
+
+    def _fit_band(self, vmap: VoxelMap, band: tuple[float, float], b0: int, b1: int, count: int) -> np.ndarray:
+        """Up to two horizontal planes (a slab's top and underside) in a density band; each is a floor or a
+        ceiling by where the sensors that saw it were."""
+        cfg = self.cfg
+        pad = max(1, round(0.15 / cfg.slab_bin_m))
+        zb = self.zbin[: self.n]
+        rows = np.flatnonzero((zb >= b0 - pad) & (zb < b1 + pad))
+        rows = rows[self.elem[rows] < 0]
+        rng = np.random.default_rng(len(rows))
+        out: list[np.ndarray] = [np.zeros(0, np.int64)]
+        first = 0
+        for _ in range(2):  # a slab's two faces at most
+            if len(rows) < cfg.slab_min_voxels:
+                break
+            sample = rows if len(rows) <= _SLAB_SAMPLE else rng.choice(rows, _SLAB_SAMPLE, replace=False)
+            plane, _ = ransac_plane(vmap.positions[sample], cfg.plane_threshold_m, _SLAB_ITERATIONS, rng)
+            if abs(plane[2]) < np.cos(np.radians(cfg.max_slab_tilt_deg)):
+                break
+            on = np.abs(vmap.positions[rows] @ plane[:3] + plane[3]) < cfg.plane_threshold_m
+            inliers = rows[on]
+            if len(inliers) < cfg.slab_min_voxels or len(inliers) < 0.2 * first:
+                break
+            first = first or len(inliers)
+            rows = rows[~on]
+            pos = vmap.positions[inliers]
+            if _interior_share(pos[:, :2]) < _MIN_INTERIOR:
+                continue  # lines, not a surface: a spinning scanner's rings on the walls all at one height
+            height = float(np.median(pos[:, 2]))
+            below = float(np.median(self.sensor_z[inliers])) - height
+            if abs(below) < cfg.sensor_margin_m:
+                continue  # at the sensor's height: a table top seen edge-on, not a slab
+            kind = Kind.FLOOR if below > 0 else Kind.CEILING
+            lo, hi = np.percentile(pos, 1, axis=0), np.percentile(pos, 99, axis=0)
+            slab = _Slab(self._new_id(), kind, band, plane, lo, hi, count, len(inliers))
+            self.slabs.append(slab)
+            self.elem[inliers] = slab.id
+            self.kind_cls[inliers] = CLASS_OF[kind]
+            out.append(inliers)
+        return np.concatenate(out)
+
+    def storey(self, xy: np.ndarray, z: float) -> tuple[float, float] | None:
+        """(floor, ceiling) heights at `xy` of the story a sensor at height `z` stands in; None without a floor.
+        Without a ceiling the story is `default_story_m` high."""
+        floors = [(float(s.height_at(xy)), s) for s in self.slabs if s.kind is Kind.FLOOR]
+        floors = [f for f in floors if f[0] < z]
+        if not floors:
+            return None
+        zf = max(f[0] for f in floors)
+        ceilings = [float(s.height_at(xy)) for s in self.slabs if s.kind is Kind.CEILING]
+        ceilings = [c for c in ceilings if c > z]
+        zc = min(ceilings) if ceilings else zf + self.cfg.default_story_m
+        return zf, zc
+
+    def _ceiling_heights(self) -> np.ndarray:
+        return np.array([float(np.median([s.lo[2], s.hi[2]])) for s in self.slabs if s.kind is Kind.CEILING])
+
+    # ------------------------------------------------------------------------------------------ new voxels
+
+    def _join_elements(self, vmap: VoxelMap, rows: np.ndarray) -> np.ndarray:
+        """New voxels on the slabs, walls, columns and beams found so far (until their tile is refitted)."""
+        if not len(rows):
+            return rows
+        pos = vmap.positions[rows]
+        free = self.elem[rows] < 0
+        thr = self.cfg.plane_threshold_m
+        for s in self.slabs:  # one iteration per slab
+            on = free & (np.abs(pos @ s.plane[:3] + s.plane[3]) < thr)
+            on &= np.all((pos[:, :2] > s.lo[:2] - _SLAB_XY_MARGIN_M) & (pos[:, :2] < s.hi[:2] + _SLAB_XY_MARGIN_M), 1)
+            self.elem[rows[on]] = s.id
+            self.kind_cls[rows[on]] = CLASS_OF[s.kind]
+            free &= ~on
+        for e in (*self.columns.values(), *self.beams.values()):  # one iteration per column or beam
+            on = free & np.all((pos >= e.lo - thr) & (pos <= e.hi + thr), 1)
+            self.elem[rows[on]] = e.id
+            self.kind_cls[rows[on]] = e.class_id
+            free &= ~on
+        if self.wall_of_piece and free.any():  # a voxel can only lie on a piece of its own tile
+            f = np.flatnonzero(free)
+            tiles = self.tile_of[rows[f]]
+            order = np.argsort(tiles, kind="stable")
+            bounds = np.r_[0, np.flatnonzero(np.diff(tiles[order])) + 1, len(order)]
+            for lo, hi in pairwise(bounds):  # one iteration per tile touched
+                pids = [p for p in self.tiles[int(tiles[order[lo]])].pieces if p in self.wall_of_piece]
+                if pids:
+                    self._join_pieces(vmap, rows[f[order[lo:hi]]], pids)
+        return rows
+
+    def _join_pieces(self, vmap: VoxelMap, rows: np.ndarray, pids: list[int]) -> None:
+        ps = [self.pieces[i] for i in pids]
+        normal = np.array([p.normal for p in ps])
+        offset = np.array([p.offset for p in ps])
+        u = np.array([p.u for p in ps])
+        z = np.array([p.z for p in ps])
+        pos = vmap.positions[rows]
+        d = np.abs(pos[:, :2] @ normal.T + offset)  # (F, P)
+        along = pos[:, :2] @ np.c_[-normal[:, 1], normal[:, 0]].T
+        inside = (along > u[:, 0] - 0.2) & (along < u[:, 1] + 0.2)
+        inside &= (pos[:, 2:3] > z[:, 0] - 0.2) & (pos[:, 2:3] < z[:, 1] + 0.2)
+        score = np.where(inside & (d < self.cfg.plane_threshold_m), d, np.inf)
+        best = np.argmin(score, axis=1)
+        hit = np.isfinite(score[np.arange(len(rows)), best])
+        self.elem[rows[hit]] = np.array(pids)[best[hit]]
+        self.kind_cls[rows[hit]] = SemanticClass.WALL
+
+    # ------------------------------------------------------------------------------------------ tiles
+
+    def _refit_tiles(self, vmap: VoxelMap, finishing: bool) -> list[np.ndarray]:
+        pending = np.array([t.pending for t in self.tiles], np.int64)
+        need = 1 if finishing else self.cfg.min_new_voxels
+        order = np.argsort(-pending, kind="stable")
+        order = order[pending[order] >= need]
+        # The budget is counted in voxels, not milliseconds, so that a run's labels never depend on how busy the
+        # machine was (a refit costs about the same per voxel of its 3 x 3 tile block).
+        budget = self.cfg.budget_voxels
+        self.credit = min(self.credit + budget, budget * _CREDIT_SCANS)
+        if not finishing:
+            order = order[: self.cfg.tiles_per_scan]
+        self.last_tiles = []
+        out: list[np.ndarray] = []
+        for i in order:  # one iteration per tile refitted (the budget)
+            if not finishing and self.credit <= 0:
+                break
+            cost = self._block_size(int(i))
+            out.append(self._refit_tile(vmap, int(i)))
+            self.refit_voxels += cost
+            if not finishing:
+                self.credit -= cost
+            self.last_tiles.append((int(self.tile_xy[i, 0]), int(self.tile_xy[i, 1])))
+        return out
+
+    def _block_size(self, i: int) -> int:
+        x, y = self.tile_xy[i]
+        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
+        found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
+        return sum(sum(len(c) for c in self.tiles[int(j)].chunks) for j in found if j >= 0)
+
+    def _tile_block(self, i: int) -> np.ndarray:
+        """Rows of tile `i` and the 8 tiles around it."""
+        x, y = self.tile_xy[i]
+        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
+        keys = pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)])
+        found = self.tile_keys.find(keys)
+        return np.concatenate([self.tiles[int(j)].rows() for j in found if j >= 0])
+
+    def _refit_tile(self, vmap: VoxelMap, i: int) -> np.ndarray:
+        tile = self.tiles[i]
+        tile.pending = 0
+        self.refits += 1
+        rows = tile.rows()
+        old = set(tile.elements) | set(tile.pieces)
+        for e in tile.elements:
+            self.columns.pop(e, None)
+            self.beams.pop(e, None)
+        block = self._tile_block(i)
+        # forget this tile's columns and beams (they may reach into the tiles around) and wall pieces
+        stale = block[np.isin(self.elem[block], np.fromiter(old, np.int64, len(old)))] if old else block[:0]
+        self.elem[stale] = -1
+        self.kind_cls[stale] = UNLABELLED
+        for p in tile.pieces:
+            self.pieces.pop(p, None)
+        tile.elements, tile.pieces = [], []
+        if self.outdoor:  # walls first: a facade's foot is wall, not ground
+            was_ground = rows[self.elem[rows] == 0]
+            self.elem[was_ground] = -1
+            self.kind_cls[was_ground] = UNLABELLED
+            self._fit_walls(vmap, i, rows, None)
+            walls = self._merge_walls()
+            return np.concatenate([stale, walls, self._ground_rows(vmap, rows), rows])
+        centre = (self.tile_xy[i] + 0.5) * self.cfg.tile_m
+        zs = float(np.median(self.sensor_z[rows])) if len(rows) else 0.0
+        storey = self.storey(centre, zs)
+        # walls first: what stands or hangs free of them is a column or a beam
+        self._fit_walls(vmap, i, rows, storey)
+        walls = self._merge_walls()
+        self._join_block_walls(vmap, i, block)
+        if storey is not None:
+            self._fit_columns(vmap, i, block, storey)
+            self._fit_beams(vmap, i, block, storey)
+        return np.concatenate([stale, walls, block])
+
+    def _block_pieces(self, i: int) -> list[int]:
+        """Confirmed wall pieces of tile `i` and the 8 tiles around it."""
+        x, y = self.tile_xy[i]
+        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
+        found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
+        return [p for j in found if j >= 0 for p in self.tiles[int(j)].pieces if p in self.wall_of_piece]
+
+    def _join_block_walls(self, vmap: VoxelMap, i: int, block: np.ndarray) -> None:
+        """Free voxels of the tiles around on a wall found in any of them (a wall's piece in one tile can miss
+        its voxels near the tile's edge, or near the ceiling)."""
+        pids = self._block_pieces(i)
+        free = block[self.elem[block] < 0]
+        if pids and len(free):
+            self._join_pieces(vmap, free, pids)
+
+    def _footprints(
+        self, vmap: VoxelMap, rows: np.ndarray, z0: float, z1: float, free_only: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Occupancy grid (cells of one voxel) of rows (free ones only: on no element) with z in [z0, z1):
+        counts, origin cell, and the rows with their cells."""
+        pos = vmap.positions[rows]
+        sel = ((self.elem[rows] < 0) | (not free_only)) & (pos[:, 2] >= z0) & (pos[:, 2] < z1)
+        rows, pos = rows[sel], pos[sel]
+        if not len(rows):
+            return np.zeros((0, 0), np.int64), np.zeros(2, np.int64), rows, np.zeros((0, 2), np.int64)
+        cell = np.floor(pos[:, :2] / self.voxel).astype(np.int64)
+        origin = cell.min(axis=0)
+        cell -= origin
+        shape = cell.max(axis=0) + 1
+        counts = np.bincount(cell[:, 0] * shape[1] + cell[:, 1], minlength=int(shape[0] * shape[1]))
+        return counts.reshape(shape), origin, rows, cell
+
+    def _fit_columns(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
+        cfg = self.cfg
+        zf, zc = storey
+        margin = 0.15
+        # occupied from the floor up to the story's head, or as high as a column must reach at least (a scanner
+        # close to the floor sees a column's head only from far away, a ceiling perhaps never)
+        reach = min(zc - zf - 2 * margin, cfg.column_min_height_m)
+        full = max(1.0, reach / self.voxel)
+        counts, origin, rows, _ = self._footprints(vmap, block, zf + margin, zf + margin + reach)
+        if not len(rows):
+            return
+        cover = counts / full
+        tall = cover >= cfg.column_min_cover
+        labels, num = ndimage.label(tall, structure=np.ones((3, 3)))
+        if not num:
+            return
+        occupied = ndimage.binary_dilation(cover >= 0.25)
+        max_cells = cfg.column_max_width_m / self.voxel
+        pieces = [self.pieces[p] for p in self._block_pieces(i)]
+        for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
+            mask = labels[sl] == k
+            size = np.array(mask.shape)
+            if size.max() > max_cells or mask.sum() < 2:
+                continue
+            if size.min() <= 1 and size.max() * self.voxel > _LINE_MAX_M:
+                continue  # one line of cells: a wall stub seen edge-on
+            ring_sl = tuple(slice(max(s.start - _RING_CELLS, 0), s.stop + _RING_CELLS) for s in sl)
+            ring = occupied[ring_sl].copy()
+            inner = np.zeros_like(ring)
+            inner[tuple(slice(s.start - r.start, s.stop - r.start) for s, r in zip(sl, ring_sl, strict=True))] = mask
+            grown = ndimage.binary_dilation(inner, iterations=1)
+            around = ndimage.binary_dilation(inner, iterations=_RING_CELLS) & ~grown
+            if around.sum() and ring[around].mean() > _RING_MAX_SHARE:
+                continue  # attached to something tall (a wall between openings): not free-standing
+            lo_cell = np.array([sl[0].start, sl[1].start]) + origin
+            hi_cell = np.array([sl[0].stop, sl[1].stop]) + origin
+            centre = (lo_cell + hi_cell) / 2 * self.voxel
+            if self._on_wall_line(centre, (hi_cell - lo_cell) * self.voxel, pieces):
+                continue  # a wall's end or the piece between two openings, not a column
+            if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
+                continue  # the tile its centre lies in owns it
+            e = Element(
+                self._new_id(),
+                Kind.COLUMN,
+                np.r_[lo_cell * self.voxel, zf],
+                np.r_[hi_cell * self.voxel, zc],
+                axis=np.array([0.0, 0.0, 1.0]),
+            )
+            self.columns[e.id] = e
+            self.tiles[i].elements.append(e.id)
+            on = self._in_box(vmap, block, e)
+            self.elem[on] = e.id
+            self.kind_cls[on] = SemanticClass.COLUMN
+
+    @staticmethod
+    def _on_wall_line(centre: np.ndarray, size: np.ndarray, pieces: list[_Piece]) -> bool:
+        """Whether a footprint lies on the line of a wall piece, within its extent or just past its ends."""
+        for p in pieces:  # one iteration per wall piece nearby
+            off = abs(float(centre @ p.normal + p.offset))
+            along = float(centre @ np.array([-p.normal[1], p.normal[0]]))
+            if off < 0.5 * float(size.max()) + 0.1 and p.u[0] - _WALL_GAP_M < along < p.u[1] + _WALL_GAP_M:
+                return True
+        return False
+
+    def _in_box(self, vmap: VoxelMap, rows: np.ndarray, e: Element) -> np.ndarray:
+        pos = vmap.positions[rows]
+        thr = self.cfg.plane_threshold_m
+        inside = np.all((pos >= e.lo - thr) & (pos <= e.hi + thr), axis=1) & (self.elem[rows] < 0)
+        return rows[inside]
+
+    def _fit_beams(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
+        cfg = self.cfg
+        zf, zc = storey
+        if not any(s.kind is Kind.CEILING for s in self.slabs):
+            return  # a beam hangs under a slab
+        hang, origin, rows, cell = self._footprints(vmap, block, zc - cfg.beam_max_depth_m, zc - cfg.plane_threshold_m)
+        if not len(rows):
+            return
+        below, b_origin, _, _ = self._footprints(vmap, block, zf + 0.15, zc - cfg.beam_max_depth_m, free_only=False)
+        full = max(1.0, (zc - cfg.beam_max_depth_m - zf - 0.15) / self.voxel)
+        support = np.zeros(hang.shape, np.float64)
+        if below.size:  # the same cells in the grid of what stands below (a wall's head is not a beam)
+            off = b_origin - origin
+            xs, ys = np.nonzero(below)
+            xs, ys = xs + off[0], ys + off[1]
+            ok = (xs >= 0) & (ys >= 0) & (xs < hang.shape[0]) & (ys < hang.shape[1])
+            support[xs[ok], ys[ok]] = below[xs[ok] - off[0], ys[ok] - off[1]] / full
+        cand = (hang > 0) & (support < 0.3)
+        labels, _ = ndimage.label(cand, structure=np.ones((3, 3)))
+        for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
+            xs, ys = np.nonzero(labels[sl] == k)
+            if len(xs) < 3:
+                continue
+            pts = np.c_[xs + sl[0].start, ys + sl[1].start].astype(np.float64) * self.voxel
+            mean = pts.mean(axis=0)
+            _, vec = np.linalg.eigh(np.cov((pts - mean).T) + 1e-9 * np.eye(2))
+            axis = vec[:, 1]
+            along, across = (pts - mean) @ axis, (pts - mean) @ vec[:, 0]
+            length, width = np.ptp(along) + self.voxel, np.ptp(across) + self.voxel
+            if length < cfg.beam_min_length_m or width > cfg.beam_max_width_m:
+                continue
+            if len(xs) * self.voxel**2 < 0.5 * length * width:
+                continue  # not a bar: the corner where two walls meet the ceiling, a lamp's outline
+            centre = mean + origin * self.voxel
+            if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
+                continue
+            members = np.isin(
+                cell[:, 0] * hang.shape[1] + cell[:, 1], (xs + sl[0].start) * hang.shape[1] + ys + sl[1].start
+            )
+            on = rows[members]
+            if not len(on):
+                continue
+            pos = vmap.positions[on]
+            # a beam shows its underside: a flat bottom across most of its footprint (a wall's head does not)
+            bottom = pos[:, 2] < pos[:, 2].min() + 2 * cfg.plane_threshold_m
+            under_cells = len(np.unique(cell[members][bottom], axis=0))
+            if under_cells < 0.5 * len(xs):
+                continue
+            e = Element(
+                self._new_id(),
+                Kind.BEAM,
+                np.r_[pos[:, :2].min(axis=0), pos[:, 2].min()],
+                np.r_[pos[:, :2].max(axis=0), zc],
+                axis=np.r_[axis, 0.0],
+            )
+            self.beams[e.id] = e
+            self.tiles[i].elements.append(e.id)
+            self.elem[on] = e.id
+            self.kind_cls[on] = SemanticClass.BEAM
+
+    def _fit_walls(self, vmap: VoxelMap, i: int, rows: np.ndarray, storey: tuple[float, float] | None) -> None:
+        """Vertical planes of a tile, one after another (RANSAC); each a wall piece with its voxels."""
+        cfg = self.cfg
+        rows = rows[self.elem[rows] < 0]
+        if storey is not None:  # the walls of this story, not the slabs' edges
+            z = vmap.positions[rows, 2]
+            rows = rows[(z > storey[0] + cfg.plane_threshold_m) & (z < storey[1] - cfg.plane_threshold_m)]
+        rng = np.random.default_rng(i)
+        for _ in range(_WALL_PLANES):  # one iteration per plane tried
+            if len(rows) < cfg.wall_piece_min_voxels:
+                return
+            pos = vmap.positions[rows]
+            line, on = ransac_line(pos[:, :2], cfg.plane_threshold_m, _WALL_ITERATIONS, rng)
+            if line is None or on.sum() < cfg.wall_piece_min_voxels:
+                return
+            keep_rows, rest = rows[on], rows[~on]
+            rows = rest
+            normal = line[:2]
+            p = pos[on]
+            offset = float(-np.median(p[:, :2] @ normal))
+            along = p[:, :2] @ np.array([-normal[1], normal[0]])
+            # the largest run along the wall without a gap wider than _WALL_GAP_M
+            order = np.argsort(along)
+            cuts = np.flatnonzero(np.diff(along[order]) > _WALL_GAP_M) + 1
+            runs = np.split(order, cuts)
+            run = max(runs, key=len)
+            if len(run) < cfg.wall_piece_min_voxels:
+                rows = np.r_[rows, np.setdiff1d(keep_rows, keep_rows[run])]
+                continue
+            if _fill_share(np.c_[along[run], p[run, 2]], _FACE_CELL_M) < _MIN_FACE_FILL:
+                continue  # a strip through furniture or the ground seen from above, not a face standing up
+            zr = np.percentile(p[run, 2], [1, 99])
+            piece = _Piece(
+                self._new_id(), i, normal, offset, (float(along[run].min()), float(along[run].max())),
+                (float(zr[0]), float(zr[1])), keep_rows[run],
+            )  # fmt: skip
+            self.pieces[piece.id] = piece
+            self.tiles[i].pieces.append(piece.id)
+            rows = np.r_[rows, np.setdiff1d(keep_rows, piece.rows)]
+
+    def _merge_walls(self) -> np.ndarray:
+        """Pieces of every tile joined into walls (parallel, coplanar, touching along the wall); a wall is
+        confirmed when it is `wall_min_width_m` wide and `wall_min_height_m` high. Returns the rows whose
+        wall changed."""
+        cfg = self.cfg
+        before = dict(self.wall_of_piece)
+        ids = np.array(list(self.pieces), np.int64)
+        self.wall_of_piece = {}
+        if len(ids):
+            ps = [self.pieces[int(i)] for i in ids]
+            normal = np.array([p.normal for p in ps])
+            offset = np.array([p.offset for p in ps])
+            u = np.array([p.u for p in ps])
+            z = np.array([p.z for p in ps])
+            direction = np.c_[-normal[:, 1], normal[:, 0]]
+            mid = (u[:, 0] + u[:, 1]) / 2
+            centre = direction * mid[:, None] - normal * offset[:, None]  # a point on each piece's line
+            cos = np.abs(normal @ normal.T)
+            dist = np.abs(centre @ normal.T + offset[None, :])  # piece i's centre from piece j's plane
+            ends = np.stack(
+                [centre + direction * (u[:, :1] - mid[:, None]), centre + direction * (u[:, 1:] - mid[:, None])], 1
+            )
+            proj = np.einsum("ikc,jc->ijk", ends, direction)  # i's ends along j's direction
+            gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
+            link = (cos > np.cos(np.radians(cfg.wall_merge_deg))) & (dist < 2 * cfg.plane_threshold_m)
+            link &= (2 * cfg.plane_threshold_m > dist.T) & (gap < _WALL_GAP_M)
+            a, b = np.nonzero(link)
+            graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids)))
+            _, group = connected_components(graph, directed=False)
+            # each wall's width along the direction of its largest piece, and its height (vectorised per group)
+            size = np.array([len(p.rows) for p in ps])
+            order = np.lexsort((-size, group))
+            lead = np.full(group.max() + 1, -1, np.int64)
+            lead[group[order[::-1]]] = order[::-1]  # the first of each group in `order`: its largest piece
+            span = np.einsum("kjc,kc->kj", ends, direction[lead[group]])
+            ng = group.max() + 1
+            lo_u, hi_u = np.full(ng, np.inf), np.full(ng, -np.inf)
+            lo_z, hi_z = np.full(ng, np.inf), np.full(ng, -np.inf)
+            np.minimum.at(lo_u, group, span.min(1))
+            np.maximum.at(hi_u, group, span.max(1))
+            np.minimum.at(lo_z, group, z[:, 0])
+            np.maximum.at(hi_z, group, z[:, 1])
+            ok = (hi_u - lo_u >= cfg.wall_min_width_m) & (hi_z - lo_z >= cfg.wall_min_height_m)
+            first_id = np.full(ng, np.iinfo(np.int64).max)
+            np.minimum.at(first_id, group, ids)
+            confirmed = ok[group]
+            self.wall_of_piece = dict(zip(ids[confirmed].tolist(), first_id[group[confirmed]].tolist(), strict=True))
+        out: list[np.ndarray] = [np.zeros(0, np.int64)]
+        for pid in self.wall_of_piece.keys() - before.keys():  # newly confirmed: their voxels become wall
+            rows = self.pieces[pid].rows
+            free = rows[(self.elem[rows] < 0) | (self.elem[rows] == pid)]
+            self.elem[free] = pid
+            self.kind_cls[free] = SemanticClass.WALL
+            out.append(free)
+        for pid in before.keys() - self.wall_of_piece.keys():  # no longer a wall (or refitted away)
+            if pid in self.pieces:
+                rows = self.pieces[pid].rows
+                mine = rows[self.elem[rows] == pid]
+                self.elem[mine] = -1
+                self.kind_cls[mine] = UNLABELLED
+                out.append(mine)
+        return np.concatenate(out)
+
+    # ------------------------------------------------------------------------------------------ ground
+
+    def _ground_keys(self, pos: np.ndarray) -> np.ndarray:
+        c = np.floor(pos[:, :2] / self.cfg.ground_cell_m).astype(np.int64)
+        return pack_keys(np.c_[c, np.zeros(len(c), np.int64)])
+
+    def _ground_rows(self, vmap: VoxelMap, rows: np.ndarray) -> np.ndarray:
+        """Outdoors: voxels just above their cell's lowest voxel, where that lowest voxel lies with its
+        neighbours' (not a roof or a car's top) and below the sensor."""
+        if not len(rows) or not len(self.ground_min):
+            return rows[:0]
+        cfg = self.cfg
+        pos = vmap.positions[rows]
+        c = np.floor(pos[:, :2] / cfg.ground_cell_m).astype(np.int64)
+        o = np.stack(np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij"), -1).reshape(9, 2)
+        keys = pack_keys(np.c_[(c[:, None, :] + o[None]).reshape(-1, 2), np.zeros(9 * len(c), np.int64)])
+        idx = self.ground_keys.find(keys).reshape(len(rows), 9)
+        mins = np.where(idx >= 0, self.ground_min[np.maximum(idx, 0)], np.nan)
+        own = mins[:, 4]
+        around = np.nanmedian(mins, axis=1)
+        ground = (pos[:, 2] - own < cfg.ground_band_m) & (own < around + 0.25)
+        ground &= own < self.sensor_z[rows] - 0.5
+        free = self.elem[rows] < 0
+        on = rows[ground & (free | (self.kind_cls[rows] == SemanticClass.GROUND))]
+        self.elem[on] = 0  # the ground is one element, id 0
+        self.kind_cls[on] = SemanticClass.GROUND
+        off = rows[~ground & (self.kind_cls[rows] == SemanticClass.GROUND)]
+        self.elem[off] = -1
+        self.kind_cls[off] = UNLABELLED
+        return rows
+
+    # ------------------------------------------------------------------------------------------ fusion
+
+    def _fuse(self, vmap: VoxelMap, rows: np.ndarray) -> None:
+        """The class the structure gives each row (UNLABELLED where the network's label stands)."""
+        if not len(rows):
+            return
+        if not self.has_floor:
+            self.fused[rows] = UNLABELLED  # no floor, no structure: the network alone (one warning says so)
+            return
+        s = self.kind_cls[rows]
+        c = self.net_cls[rows]
+        on = s != UNLABELLED
+        keep = on & NON_STRUCTURAL[c] & (self.net_score[rows] >= self.cfg.keep_confidence)
+        out = np.where(on & ~keep, s, UNLABELLED).astype(np.uint16)
+        free = ~on
+        z = vmap.positions[rows, 2]
+        sz = self.sensor_z[rows]
+        margin = self.cfg.sensor_margin_m
+        C = SemanticClass
+        if self.outdoor:  # outdoors there is ground, never floor or ceiling
+            out[free & np.isin(c, [C.FLOOR, C.CEILING, C.BEAM])] = C.CLUTTER  # no slab overhead: no beam
+        else:
+            ceilings = self._ceiling_heights()
+            # a ceiling needs an overhead slab: decided at the end, when every band was looked at
+            no_slab = self.final and len(ceilings) == 0
+            bad_ceiling = free & (c == C.CEILING) & ((z < sz + margin) | no_slab)
+            bad_floor = free & (c == C.FLOOR) & (z > sz - margin)
+            out[bad_ceiling | bad_floor] = C.CLUTTER
+            if self.final and len(ceilings):  # a ceiling voxel lies on a ceiling slab: elsewhere it is a wall's head
+                stray = np.flatnonzero(free & (c == C.CEILING) & ~bad_ceiling)
+                pos = vmap.positions[rows[stray]]
+                off = np.full(len(stray), np.inf)
+                for slab in self.slabs:  # one iteration per slab
+                    if slab.kind is Kind.CEILING:
+                        off = np.minimum(off, np.abs(pos[:, 2] - slab.height_at(pos[:, :2])))
+                far = off > 2 * self.cfg.plane_threshold_m
+                out[stray[far]] = np.where(self._near_wall(pos[far]), C.WALL, C.CLUTTER)
+            if len(ceilings):  # a beam hangs under a ceiling
+                under = np.min(np.abs(z[:, None] - ceilings[None, :]), axis=1) < self.cfg.beam_max_depth_m
+            else:
+                under = np.zeros(len(rows), bool)
+            out[free & (c == C.BEAM) & ~under] = C.CLUTTER
+        self.fused[rows] = out
+
+    def _near_wall(self, pos: np.ndarray, reach_m: float = 0.15) -> np.ndarray:
+        """Whether points lie within `reach_m` of a confirmed wall piece's plane, beside or just past it."""
+        near = np.zeros(len(pos), bool)
+        if not len(pos):
+            return near
+        for pid in self.wall_of_piece:  # one iteration per wall piece
+            p = self.pieces[pid]
+            along = pos[:, :2] @ np.array([-p.normal[1], p.normal[0]])
+            on_line = np.abs(pos[:, :2] @ p.normal + p.offset) < reach_m
+            near |= on_line & (along > p.u[0] - 0.5) & (along < p.u[1] + 0.5)
+        return near
+
+    # ------------------------------------------------------------------------------------------ results
+
+    def warning(self) -> str | None:
+        """One line when no floor (ground outdoors) was found: the labels are then the network's alone."""
+        if self.has_floor or not self.n:
+            return None
+        what = "ground" if self.outdoor else "floor slab"
+        return (
+            f"structure: no {what} found in the levelled map (a tilted or vertical mount?); "
+            "labels are the network's alone"
+        )
+
+    def elements(self, vmap: VoxelMap | None = None, scans: bool = True) -> list[Element]:
+        """Every element found, with its support (voxels, and with `scans` the scans that saw them)."""
+        elem = self.elem[: self.n]
+        out: list[Element] = []
+        for s in self.slabs:
+            out.append(Element(s.id, s.kind, s.lo.copy(), s.hi.copy(), plane=s.plane.copy()))
+        walls: dict[int, list[_Piece]] = {}
+        for pid, wall in self.wall_of_piece.items():
+            walls.setdefault(wall, []).append(self.pieces[pid])
+        for wall, ps in walls.items():
+            rows = np.concatenate([p.rows for p in ps])
+            pos = vmap.positions[rows] if vmap is not None else None
+            big = max(ps, key=lambda p: len(p.rows))
+            if pos is None or not len(pos):
+                continue
+            plane = np.r_[big.normal, 0.0, big.offset]
+            out.append(Element(wall, Kind.WALL, pos.min(axis=0), pos.max(axis=0), plane=plane))
+        out.extend(
+            Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
+        )
+        if self.outdoor and np.any(self.kind_cls[: self.n] == SemanticClass.GROUND) and vmap is not None:
+            g = vmap.positions[: self.n][self.kind_cls[: self.n] == SemanticClass.GROUND]
+            out.append(Element(0, Kind.GROUND, g.min(axis=0), g.max(axis=0)))
+        piece_wall = np.full(self.next_id + 1, -1, np.int64)
+        for pid, wall in self.wall_of_piece.items():
+            piece_wall[pid] = wall
+        owner = np.where(elem >= 0, elem, -1)
+        wall_ids = piece_wall[np.clip(owner, 0, None)]
+        owner = np.where(wall_ids >= 0, wall_ids, owner)
+        counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1)
+        for e in out:
+            e.voxels = int(counts[e.id]) if e.id < len(counts) else 0
+            if vmap is not None and e.voxels and scans:
+                e.scans = len(np.unique(vmap.first_seq[: self.n][owner == e.id]))
+        return [e for e in out if e.voxels]

@@ -1,0 +1,249 @@
+"""The structure model (pipeline.structure): what geometry decides, on scenes whose geometry is known."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aftershock.pipeline.classes import NETWORK_CLASSES, NUM_CLASSES, SemanticClass
+from aftershock.pipeline.config import Environment, StructureConfig
+from aftershock.pipeline.structure import Kind, StructureModel
+from aftershock.pipeline.voxel_map import VoxelMap
+
+C = SemanticClass
+STEP = 0.05  # sampling of the synthetic surfaces (finer than the 0.1 m voxels)
+
+
+def _grid(a0: float, a1: float, b0: float, b1: float) -> tuple[np.ndarray, np.ndarray]:
+    a, b = np.meshgrid(np.arange(a0, a1, STEP), np.arange(b0, b1, STEP), indexing="ij")
+    return a.ravel(), b.ravel()
+
+
+def room(x1: float = 8.0, y1: float = 6.0, height: float = 3.0, x0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Points and true classes of a box room: floor at z = 0, ceiling at `height`, four walls, a 0.4 m square
+    column at (x0 + 3, 3) and a 0.3 m wide, 0.4 m deep beam along x at y = 4.5 under the ceiling."""
+    parts: list[tuple[np.ndarray, int]] = []
+    x, y = _grid(x0, x1, 0, y1)
+    parts += [(np.c_[x, y, np.zeros_like(x)], C.FLOOR), (np.c_[x, y, np.full_like(x, height)], C.CEILING)]
+    for fixed, (lo, hi), along_x in (
+        (0.0, (x0, x1), True),
+        (y1, (x0, x1), True),
+        (x0, (0, y1), False),
+        (x1, (0, y1), False),
+    ):
+        u, z = _grid(lo, hi, 0.05, height - 0.05)
+        pts = np.c_[u, np.full_like(u, fixed), z] if along_x else np.c_[np.full_like(u, fixed), u, z]
+        parts.append((pts, C.WALL))
+    cx, cy = x0 + 3.0, 3.0
+    u, z = _grid(-0.2, 0.2, 0.05, height - 0.05)
+    for face in (
+        np.c_[cx + u, np.full_like(u, cy - 0.2), z],
+        np.c_[cx + u, np.full_like(u, cy + 0.2), z],
+        np.c_[np.full_like(u, cx - 0.2), cy + u, z],
+        np.c_[np.full_like(u, cx + 0.2), cy + u, z],
+    ):
+        parts.append((face, C.COLUMN))
+    bx, bw = _grid(x0 + 0.5, x1 - 0.5, 4.35, 4.65)
+    parts.append((np.c_[bx, bw, np.full_like(bx, height - 0.4)], C.BEAM))
+    for side in (4.35, 4.65):
+        u, z = _grid(x0 + 0.5, x1 - 0.5, height - 0.4, height - 0.05)
+        parts.append((np.c_[u, np.full_like(u, side), z], C.BEAM))
+    pts = np.concatenate([p for p, _ in parts])
+    cls = np.concatenate([np.full(len(p), c, np.uint16) for p, c in parts])
+    return pts, cls
+
+
+def _map(points: np.ndarray, net_class: np.ndarray, score: float = 0.5) -> tuple[VoxelMap, np.ndarray]:
+    vmap = VoxelMap(0.1)
+    _, rows = vmap.insert(points)
+    vmap.class_ids[rows] = net_class
+    vmap.scores[rows] = score
+    return vmap, rows
+
+
+def _run(vmap: VoxelMap, env: Environment = Environment.INDOOR, cfg: StructureConfig | None = None) -> StructureModel:
+    model = StructureModel(cfg or StructureConfig(), env, vmap.voxel_size)
+    model.update(vmap, sensor_z=1.0)
+    model.finish(vmap)
+    model.apply(vmap)
+    return model
+
+
+def test_the_class_table_appends_ground_and_the_networks_keep_their_outputs() -> None:
+    assert C.GROUND == 14 and NUM_CLASSES == 15 and NETWORK_CLASSES == 14
+
+
+def test_a_room_gives_its_floor_ceiling_walls_column_and_beam_with_their_extents() -> None:
+    pts, truth = room()
+    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    els = model.elements(vmap)
+    kinds = [e.kind for e in els]
+    assert kinds.count(Kind.FLOOR) == 1 and kinds.count(Kind.CEILING) == 1
+    floor = next(e for e in els if e.kind is Kind.FLOOR)
+    ceiling = next(e for e in els if e.kind is Kind.CEILING)
+    assert abs(floor.lo[2]) < 0.05 and abs(ceiling.hi[2] - 3.0) < 0.05
+    assert np.allclose(floor.lo[:2], [0, 0], atol=0.2) and np.allclose(floor.hi[:2], [8, 6], atol=0.2)
+    walls = [e for e in els if e.kind is Kind.WALL]
+    assert len(walls) >= 4
+    big = sorted(walls, key=lambda e: -e.voxels)[:4]
+    widths = sorted(float(np.ptp([e.lo[:2], e.hi[:2]], axis=0).max()) for e in big)
+    assert widths[0] > 5.0 and widths[-1] > 7.0  # every wall found whole across its tiles
+    columns = [e for e in els if e.kind is Kind.COLUMN]
+    assert len(columns) == 1
+    col = columns[0]
+    assert np.allclose((col.lo[:2] + col.hi[:2]) / 2, [3.0, 3.0], atol=0.1)
+    assert np.all(col.hi[:2] - col.lo[:2] < 0.7) and col.hi[2] - col.lo[2] > 2.5
+    beams = [e for e in els if e.kind is Kind.BEAM]
+    assert beams and max(float(np.ptp([e.lo[0], e.hi[0]])) for e in beams) > 4.0
+    assert all(abs((e.lo[1] + e.hi[1]) / 2 - 4.5) < 0.3 for e in beams)
+    # and the labels follow: the network said clutter everywhere
+    got = vmap.class_ids[rows]
+    for cls, share in ((C.FLOOR, 0.95), (C.CEILING, 0.9), (C.WALL, 0.9), (C.COLUMN, 0.7)):
+        assert np.mean(got[truth == cls] == cls) > share, cls.name
+
+
+def test_the_map_is_refitted_only_where_it_changed() -> None:
+    pts, _ = room()
+    vmap, _ = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap, cfg=StructureConfig(budget_voxels=10**7))  # the budget is then `tiles_per_scan`
+    refits = model.refits
+    far, _ = room(x0=20.0, x1=26.0)  # a second room far away, added later
+    vmap.insert(far)
+    model.update(vmap, sensor_z=1.0)
+    assert model.last_tiles, "the new room's tiles are refitted"
+    assert model.refits - refits == model.cfg.tiles_per_scan  # within the budget a scan, the rest wait
+    touched = list(model.last_tiles)
+    for _ in range(50):  # the waiting tiles take their turns, then nothing is left to do
+        model.update(vmap, sensor_z=1.0)
+        if not model.last_tiles:
+            break
+        touched += model.last_tiles
+    assert not model.last_tiles
+    assert all(x * model.cfg.tile_m >= 19.0 for x, _ in touched)  # only the new room's tiles
+
+
+def test_confident_debris_on_a_floor_keeps_its_label_and_unsure_labels_take_the_floor() -> None:
+    pts, truth = room()
+    net = np.where(truth == C.FLOOR, C.WALL, C.CLUTTER).astype(np.uint16)
+    on_floor = np.flatnonzero((truth == C.FLOOR) & (pts[:, 0] > 5) & (pts[:, 0] < 6) & (pts[:, 1] < 1))
+    vmap = VoxelMap(0.1)
+    _, rows = vmap.insert(pts)
+    vmap.class_ids[rows] = net
+    vmap.scores[rows] = 0.3
+    debris = np.unique(rows[on_floor])
+    vmap.class_ids[debris] = C.DEBRIS  # the network is sure of debris lying on the floor
+    vmap.scores[debris] = 0.97
+    _run(vmap)
+    assert np.all(vmap.class_ids[debris] == C.DEBRIS)
+    floor = np.setdiff1d(rows[truth == C.FLOOR], np.r_[debris, rows[truth != C.FLOOR]])
+    assert np.mean(vmap.class_ids[floor] == C.FLOOR) > 0.95  # the network's "wall" on the floor is overruled
+
+
+def test_no_ceiling_below_the_sensor_and_no_floor_above_it() -> None:
+    pts, truth = room()
+    net = truth.copy()
+    table = np.c_[_grid(5.0, 6.0, 1.0, 2.0)[0], _grid(5.0, 6.0, 1.0, 2.0)[1], np.full(400, 0.75)]
+    shelf = np.c_[_grid(1.0, 1.5, 1.0, 1.5)[0], _grid(1.0, 1.5, 1.0, 1.5)[1], np.full(100, 2.0)]
+    pts = np.concatenate([pts, table, shelf])
+    net = np.r_[net, np.full(len(table), C.CEILING), np.full(len(shelf), C.FLOOR)].astype(np.uint16)
+    vmap, rows = _map(pts, net)
+    _run(vmap)
+    got = vmap.class_ids[rows]
+    assert not np.any((got == C.CEILING) & (pts[:, 2] < 1.0))
+    assert not np.any((got == C.FLOOR) & (pts[:, 2] > 1.0))
+
+
+def test_an_outdoor_map_has_ground_never_floor_or_ceiling() -> None:
+    rng = np.random.default_rng(0)
+    x, y = _grid(-10, 10, -10, 10)
+    z = 0.02 * x + 0.05 * np.sin(y / 3) + rng.normal(0, 0.01, len(x))  # gently sloping terrain
+    car = np.c_[rng.uniform(2, 6, 3000), rng.uniform(2, 4, 3000), rng.uniform(0.3, 1.5, 3000)]
+    car[:, 2] += 0.02 * car[:, 0]
+    pts = np.concatenate([np.c_[x, y, z], car])
+    net = np.r_[np.full(len(x), C.FLOOR), np.full(len(car), C.CEILING)].astype(np.uint16)
+    vmap, rows = _map(pts, net)
+    model = StructureModel(StructureConfig(), Environment.OUTDOOR, 0.1)
+    model.update(vmap, sensor_z=1.8)
+    model.finish(vmap)
+    model.apply(vmap)
+    got = vmap.class_ids[rows]
+    assert np.mean(got[: len(x)] == C.GROUND) > 0.95
+    assert not np.isin(got, [C.FLOOR, C.CEILING]).any()
+    assert any(e.kind is Kind.GROUND for e in model.elements(vmap))
+
+
+def test_a_tilted_map_without_a_floor_keeps_the_networks_labels_and_says_so_once() -> None:
+    pts, truth = room()
+    turn = np.radians(30.0)
+    rot = np.array([[1, 0, 0], [0, np.cos(turn), -np.sin(turn)], [0, np.sin(turn), np.cos(turn)]])
+    net = np.where(truth == C.FLOOR, C.CHAIR, C.TABLE).astype(np.uint16)
+    vmap, _ = _map(pts @ rot.T, net)
+    before = vmap.class_ids.copy()
+    model = _run(vmap)
+    assert np.array_equal(vmap.class_ids, before)
+    warning = model.warning()
+    assert warning is not None and "network" in warning and "\n" not in warning
+
+
+def test_a_structure_setting_out_of_range_is_one_line_and_exit_2() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "aftershock.pipeline", "run", "--set", "structure.tile_m=-1", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "structure.tile_m" in lines[0]
+
+
+@pytest.mark.parametrize("value", ["structure.keep_confidence=1.5", "structure.tiles_per_scan=0"])
+def test_every_structure_range_is_checked(value: str) -> None:
+    from aftershock.pipeline.config import load_config
+    from aftershock.pipeline.errors import InputError
+
+    with pytest.raises(InputError, match=value.split("=")[0]):
+        load_config(None, [value])
+
+
+def test_the_evidence_features_read_the_rooms_geometry() -> None:
+    from aftershock.pipeline.structure.features import FEATURES, structure_features
+
+    pts, _ = room()
+    vmap, _ = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    probe = np.array([[4.0, 2.0, 0.75], [3.0, 3.0, 1.5], [0.3, 2.0, 1.0], [4.0, 2.0, 3.5]])
+    f = structure_features(model, probe, sensor_z=1.0)
+    assert f.shape == (4, len(FEATURES))
+    assert abs(f[0, 0] - 0.75) < 0.05  # height above the floor plane
+    assert f[1, 2] == 1 and f[0, 2] == 0  # inside the column's footprint
+    assert abs(f[2, 1] - 0.3) < 0.07  # 0.3 m from the wall at x = 0
+    assert f[0, 3] == 1 and f[3, 3] == 0  # under the ceiling slab, and above it
+
+
+def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> None:
+    """Through the real command line: `world/structure/...` in the recording (outlines and boxes), structure.json
+    beside the export, the stage's own timing, and the map's classes where the elements lie."""
+    from rrd_read import read_rrd
+
+    rrd, export = tmp_path / "run.rrd", tmp_path / "out"
+    mission = "sim://office?seed=5&sensor=vlp16&scans=8"
+    args = [sys.executable, "-m", "aftershock.pipeline", "run", mission, "--save", str(rrd), "--export", str(export)]
+    proc = subprocess.run([*args, "--quiet", "--json"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads(proc.stdout)
+    assert summary["mean_timings_ms"]["structure"] > 0
+    doc = json.loads((export / "structure.json").read_text())
+    kinds = {e["kind"] for e in doc["elements"]}
+    assert {"floor", "wall"} <= kinds
+    floor = next(e for e in doc["elements"] if e["kind"] == "floor")
+    assert floor["support"]["voxels"] > 100 and floor["support"]["scans"] >= 1 and len(floor["plane"]) == 4
+    rec = read_rrd(rrd)
+    assert {"world/structure/floors", "world/structure/walls"} <= rec.under("world/structure")
+    assert any("LineStrips3D:strips" in c for c in rec.components("world/structure/walls"))
