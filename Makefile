@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint typecheck bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real bench-all train screenshot clean
+.PHONY: setup browser demo test test-faults lint typecheck bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -22,8 +22,12 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/aftershock run --save out/demo.rrd --export out/demo --force
 
+# The report's page is checked in headless Chromium (Debian's package, driven by playwright from the dev extras).
+browser:
+	@command -v chromium >/dev/null || { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q chromium; }
+
 # mypy (below) takes about a minute of one core from a fresh clone, seconds with its cache in .mypy_cache.
-test: setup
+test: setup browser
 	$(BIN)/ruff check .
 	$(MYPY)
 	$(BIN)/pytest -q

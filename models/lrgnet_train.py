@@ -59,8 +59,8 @@ log = logging.getLogger(__name__)
 
 GENERATORS: Final = split.TRAIN_GENERATORS
 # Buildings: training, validation and held-out (test) seeds are disjoint, fixed here so that runs compare.
-# `flats` (the fourth generator, #12 round L) has its buildings here too; whether the shipped weights learn from it is
-# `split.TRAIN_GENERATORS`' say (a training run can name the generators it uses).
+# `flats` (the fourth generator, docs/decisions.md#round-l-a-fourth-training-generator) has its buildings here
+# too; whether the shipped weights learn from it is `split.TRAIN_GENERATORS`' say (a run can name its generators).
 TRAIN_SEEDS: Final = {
     "office": (100, 101, 102), "disaster": (100, 101, 102, 103, 104), "hall": split.TRAIN_SEEDS,
     "flats": (100, 101, 102, 103),
@@ -84,8 +84,8 @@ TRAIN_POINTS: Final = 128  # I = J while training (inference pools up to 512): m
 # twice the samples at the same cost (validation rooms, 750 steps each: ARI 0.73 against 0.62)
 SAMPLES_PER_ROOM: Final = 1000  # cap, so that large rooms do not crowd out the others
 GENERATOR_SAMPLES: Final = 16_000  # cap per generator, so that office's many rooms do not crowd out the hall
-EPOCHS: Final = 8  # each pass with other flips and rotations; 2 (1,318 steps) lost on validation, 8 won (README)
-PLANE: Final = True  # the per-step plane features (feature layout 3): won on validation in #12 round P2 (README)
+EPOCHS: Final = 8  # each pass with other flips and rotations; 8 won on validation (docs/decisions.md#lrgnet-8-epochs)
+PLANE: Final = True  # plane features, round P2: docs/decisions.md#round-p2-lrgnet-plane-features-full-size
 BATCH: Final = 64
 LEARNING_RATE: Final = 1e-3  # peak; linear warm-up, then cosine decay to zero over the run
 WARMUP_STEPS: Final = 30

@@ -58,8 +58,8 @@ MARGIN: Final = 1.0
 UNIFORM_POINTS: Final = 128  # per batch, drawn over all points for the class loss only
 LEARNING_RATE: Final = 1e-3
 # The families' MCPNet (logs with colour): share of crop batches and affinity weight, as TRANSFER_* below, and
-# its epochs (3 until 00:44 UTC, as the no-context baseline still has). Chosen on the 54 validation missions with
-# colour (README, objects): instance F1 .536 -> .613, (mIoU+NMI)/2 68.5 -> 71.5; at 3 epochs mean IoU fell.
+# its epochs (the no-context baseline keeps EPOCHS). Chosen on the 54 validation missions with colour; at 3 epochs
+# mean IoU fell (docs/decisions.md#the-colour-mcpnet-with-crops-and-the-affinity-loss).
 CROP_BATCHES: Final = 0.5
 AFFINITY_WEIGHT: Final = 1.0
 MCPNET_EPOCHS: Final = 6
@@ -75,13 +75,13 @@ TRANSFER_COLOR_DROP: Final = 0.5
 TRANSFER_EPOCHS: Final = 6
 CLASS_WEIGHT_POWER: Final = 0.0
 # Share of the colour-free network's triplet batches drawn as neighbouring instances of one mission
-# (`Pool.local_instance_batch`) rather than over all missions; shipped 21:56-23:40 UTC at 0.5, replaced by the
-# crop batches below (README, objects without colour).
+# (`Pool.local_instance_batch`) rather than over all missions; shipped for a while at 0.5, replaced by the
+# crop batches below (docs/decisions.md#neighbour-batches-for-the-colour-free-mcpnet).
 TRANSFER_LOCAL_BATCHES: Final = 0.0
 # Share of batches drawn as a spatial crop (`Pool.crop_batch`), and the weight of the affinity loss on the crop's
-# neighbouring points (`affinity_loss`); 0 = neither. Chosen on 54 validation missions (README, objects without
-# colour): instance F1 0.308 -> 0.460 against the neighbour batches (crops 0.5, affinity 1, shipped 23:40 UTC),
-# then 0.460 -> 0.508 with crops 0.75 and affinity 3 (round D, 02:55 UTC; 9 epochs at 0.5 / 3 lost to it).
+# neighbouring points (`affinity_loss`); 0 = neither. Chosen on 54 validation missions: crops and the affinity loss
+# beat the neighbour batches, then more crops and a heavier loss won round D
+# (docs/decisions.md#round-d-more-crops-and-a-heavier-affinity-loss).
 TRANSFER_CROP_BATCHES: Final = 0.75
 TRANSFER_AFFINITY_WEIGHT: Final = 3.0
 # Weight of a crop batch's own 256 points in its class loss beside its uniformly drawn ones (1: alike, as shipped;

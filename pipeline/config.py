@@ -73,9 +73,9 @@ class RegisterConfig(_Section):
 
 class StreamConfig(_Section):
     # Read and register the next scans on a second thread while this one is labelled, clustered and sent to
-    # the sinks (the results are the same as one stage after the other; a test checks it). Off by default:
-    # on this project's 2-core machine, idle, it gained 1.03x (the stages hold Python's GIL most of the time)
-    # and cost 100-170 MB of peak memory (`make bench-stream`, README).
+    # the sinks (the results are the same as one stage after the other; a test checks it). Off by default: it
+    # gains little (the stages hold Python's GIL most of the time) and costs peak memory a long mission cannot
+    # spare (docs/benchmarks/stream.md#reading-and-registering-on-a-second-thread).
     overlap: bool = False
     ahead: Count = 2  # scans read and registered ahead at most (bounds the memory they hold)
 
@@ -177,13 +177,14 @@ class RerunConfig(_Section):
 
 class LRGNetConfig(_Section):
     voxel_size_m: Positive = 0.1
-    # I and J: the pooled samples of a region and its neighbours. The network is trained on 128; pooling 256 measured
-    # better than 512 on validation rooms of the training buildings (office ARI 0.825 against 0.796).
+    # I and J: the pooled samples of a region and its neighbours. The network is trained on 128; pooling 256 beat
+    # 512 on validation rooms of the training buildings (docs/decisions.md#lrgnet-before-12).
     inliers: Count = 256  # I
     neighbours: Count = 256  # J
     delta_m: Positive = 0.1  # δ: neighbour set = unlabelled points within this distance of the region
     max_steps: Count = 200  # a floor grows by one voxel ring a step: 60 cut large floors and ceilings apart
-    min_segment_points: Count = 25  # smaller segments join the nearest large one (round K, validation; was 10)
+    # smaller segments join the nearest large one (docs/decisions.md#round-k-lrgnet-minimum-segment-size)
+    min_segment_points: Count = 25
     seed_min_neighbours: NonNegativeCount = 6  # seeds: voxels with fewer occupied neighbours come after all others
     search: str = "greedy"  # greedy | restart | beam
     restarts: Count = 10
@@ -226,11 +227,9 @@ class LRGNetConfig(_Section):
         return self.model_copy(update=unset) if unset else self
 
 
-# LRGNet's mode-dependent defaults, with colour (True) and without (False), chosen on validation buildings 800/801
-# of the training generators with the shipped network (rounds G and G4, README; S = (AMI + ARI) / 2 over 3 cells).
-# With colour: add threshold 0.3 and crease split 15 deg / 20 voxels (S 0.774 -> 0.785), coplanar merge 5 deg / 5 cm.
-# Without colour: add threshold 0.4, crease split 10 deg / 20 voxels, merge 10 deg / 10 cm (S 0.717 -> 0.749), and
-# the flat-region gate at 50 deg (rounds I and I2: 0.749 -> 0.772; with colour no angle gained the 0.01 asked).
+# LRGNet's mode-dependent defaults, with colour (True) and without (False): without colour growth does not stop at
+# creases, so each mode has its own, chosen on validation buildings of the training generators (rounds G, G4, I-I3;
+# kept for the round-P2 network by rounds Q-S: docs/decisions.md#round-g-lrgnet-settings-per-colour-mode).
 LRGNET_MODE_DEFAULTS: Final[dict[bool, dict[str, float]]] = {
     True: {"add_threshold": 0.3, "merge_angle_deg": 5.0, "merge_offset_m": 0.05, "crease_angle_deg": 15.0,
            "crease_min_voxels": 20, "flat_gate_deg": 0.0},
@@ -287,7 +286,8 @@ class CrackConfig(_Section):
     # a reported crack is narrow: at least min_area_elongation times longer than its mean width (its points' area
     # over its length; 0 = no test) and holding at most max_share of the element's points (1 = no test): stains and
     # shaded patches or faces are broad. Off: calibrated on simulated elements (0.3, 6) the test drops the real
-    # slab's wide crack bands and loses leave-one-object-out (bench_cracks with BENCH_NARROW=1, README)
+    # slab's wide crack bands and loses leave-one-object-out
+    # (docs/decisions.md#cracks-fainter-cracks-narrowness-and-face-rules)
     min_area_elongation: NonNegative = 0.0
     max_share: Fraction = 1.0
     grow_m: NonNegative = (
@@ -368,7 +368,7 @@ class ReportConfig(_Section):
     # Storeys are re-measured on the map with up from the lowest slab: `run` levels a map from its first scan,
     # and on 2 drift frames (missing-slab 5, partial-collapse 6) that left 8-9 mm per storey, 0.3-2.6 mm with this
     drift_gravity: Literal["ground-plane", "frame-z"] = "ground-plane"
-    # Worst drift error per storey on those frames through run (2.6 mm; measure_drift alone: 1.90 mm, README)
+    # The worst drift error per storey seen on those frames through run (docs/benchmarks/report.md)
     drift_uncertainty_mm: Positive = 3.0
     # With drift_gravity frame-z: how far a levelled map's up may be off (0.31° seen on a drift frame)
     level_uncertainty_deg: Annotated[float, Field(ge=0, le=10)] = 0.35

@@ -3,9 +3,8 @@
 KISS-ICP's world frame is the first scan's sensor frame. A LiDAR mounted with a pitch or roll (most legged
 robots, many handheld rigs, the real Ouster log in `../shared/data`) then gives a world whose z axis is not
 vertical, and everything that reads heights — MCPNet's height above the floor, the floor estimate, story
-drift — reads them wrong: on a simulated office mission (validation seed 800, no colour) with a 10° pitch,
-labelling fell from 78 % overall accuracy (level mount) to 29 % and the floor was never labelled floor;
-levelled, 76 % (README, "Which way is up").
+drift — reads them wrong: with a pitched mount labelling collapses and the floor is never labelled floor
+(docs/methods.md#levelling-the-map-which-way-is-up).
 
 Up is found from flat patches of one scan (cells of 0.5 m on two staggered grids): floors and ceilings have
 normals along it, walls across it. Candidates are the floor-like normals and the lines where two patches meet
@@ -15,9 +14,8 @@ the sensor's z are tried, which also picks up out of a building's three square a
 is reported and left as it is: no structure, walls facing one way with hardly any floor (a turn about their
 normal goes unseen), or two directions that fit alike.
 
-Settings chosen on the first scans of simulated validation missions (seed 800 of office, disaster and hall at
-0, 12 and -20° of pitch: median error 0.1°, worst 0.4°) and on real scans of `../shared/data/lidar` turned by
-six random angles up to 20° (worst 1.0°): README, "Which way is up".
+Settings chosen on the first scans of simulated validation missions, pitched, and on real scans turned by
+random angles (docs/decisions.md#levelling-and-the-attitude-hold).
 """
 
 from __future__ import annotations

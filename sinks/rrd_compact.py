@@ -1,10 +1,10 @@
 """A finished recording rewritten in fewer, larger chunks (`rerun rrd optimize`), so that a viewer takes it in
 quickly.
 
-A recording is written as it streams, a chunk per entity about every second: a 3,000-scan mission makes
-~7,800 chunks, and Rerun's web viewer (single-threaded WebAssembly) then stays unresponsive for minutes while
-it takes them in, however small they are. The same data in ~230 chunks opened in about 2.5 minutes on the
-same machine (README, "The stream"). The rewrite goes to a file beside the recording that replaces it only
+A recording is written as it streams, a chunk per entity about every second: a long mission makes thousands
+of chunks, and Rerun's web viewer (single-threaded WebAssembly) then stays unresponsive for minutes while it
+takes them in, however small they are; the same data in a few hundred chunks opens
+(docs/benchmarks/long-mission.md). The rewrite goes to a file beside the recording that replaces it only
 when complete, so an interrupted or failed rewrite leaves the recording as it was."""
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ With `absorb`, a small fragment that has stopped growing (an object still being 
 joins the neighbouring instance it agrees with most, at a lower similarity. Objects under
 `min_object_voxels` are not shown (`shown_ids`): they stay in the map, as "no object", until they grow.
 Merges are recorded on the frame as `InstanceMerge`s (and returned by `finish`), so the sinks can show them.
-Every setting was chosen on validation missions (README, "Objects, not fragments").
+Every setting was chosen on validation missions (docs/decisions.md#clustering-before-12-objects-not-fragments).
 
 Modules: `clusterer` (InstanceClusterer: the two levels above), `stats` (per-instance sums, the plane cache and
 `Geometry`), `pairs` (the table of touching instance pairs), `stage` (the stage over frames).

@@ -22,7 +22,7 @@ from aftershock.pipeline.progress import bar, enabled
 
 TABLE_ROWS: Final = 40  # the terminal table stops here; the index has them all
 NAME_WIDTH: Final = 24  # mission names in the progress bar
-DEFAULT_WORKER_MEMORY_GB: Final = 2.0  # a 3,000-scan mission peaks at 0.7 GB (README); ample for MCPNet's torch
+DEFAULT_WORKER_MEMORY_GB: Final = 2.0  # ample for a long mission with MCPNet's torch (docs/benchmarks/long-mission.md)
 
 
 def _fmt(value: Any, spec: str = "") -> str:

@@ -12,8 +12,9 @@ no longer scales with the light: that mean stays true while under a quarter of t
 candidate whose core or ring is clipped into its middle half, or has fewer than `_MIN_POINTS` points, cannot
 be judged and keeps a contrast of NaN (never dropped for it).
 
-Off by default (`cracks.min_chroma_contrast` = 0; README, round T): the real elements' stains have hues of their
-own (rust, damp) and slab2's cracks hardly any, so on them the test drops cracks and keeps stains.
+Off by default (`cracks.min_chroma_contrast` = 0; docs/decisions.md#round-t-the-hue-test): the real elements'
+stains have hues of their own (rust, damp) and slab2's cracks hardly any, so on them the test drops cracks and keeps
+stains.
 """
 
 from __future__ import annotations

@@ -5,9 +5,9 @@ voxel the log has a true class for gets it) or the embedding ("objects": every v
 vector of its true object, so the clustering sees embeddings that tell objects apart perfectly). What is left
 is the rest of the labeller and the clustering with its settings (which reads embeddings, and classes only
 to know walls and floors). On validation missions this showed that the colour-free MCPNet's objects are
-limited by its embeddings, not its classes or the clustering (README, "Objects, not fragments"). Only logs
-with ground truth; the wrapped labeller's own outputs are computed as usual (and cost as usual), then
-overwritten.
+limited by its embeddings, not its classes or the clustering
+(docs/benchmarks/objects.md#what-limits-objects-eval---oracle). Only logs with ground truth; the wrapped
+labeller's own outputs are computed as usual (and cost as usual), then overwritten.
 """
 
 from __future__ import annotations

@@ -30,7 +30,8 @@ FEATURE_VERSION: Final = 2  # bump when the meaning of the features changes (2: 
 # Feature layouts that weights may have been trained for (version -> features). Each is a prefix of the current
 # one, so older weights read the first columns: version 1 is the 13 features before the local shape.
 # Version 3 adds the per-step plane features (`features.plane_features`) after the 16: the shipped lrgnet.pt since
-# #12 round P2 (`lrgnet_train.PLANE`); files of version 2 run without them.
+# round P2 (`lrgnet_train.PLANE`; docs/decisions.md#round-p2-lrgnet-plane-features-full-size); files of version 2
+# run without them.
 PLANE_VERSION: Final = 3
 LAYOUTS: Final = {1: 13, FEATURE_VERSION: NUM_FEATURES, PLANE_VERSION: NUM_FEATURES + PLANE_FEATURES}
 

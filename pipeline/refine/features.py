@@ -7,8 +7,9 @@ scene's floor (x, y are made relative to the region's median at each step), room
 colour in [0, 1] (zero without colour), the unit normal and the curvature, which at each step are made relative
 to the region's median; then the local shape, kept absolute because it transfers between buildings: planarity
 (λ2 - λ3) / λ1 and linearity (λ1 - λ2) / λ1 of the local eigenvalues λ1 ≥ λ2 ≥ λ3, and |n_z| (1 on floors,
-0 on walls). Weights of feature layout 3 (shipped since #12 round P2) read two more per step, appended by
-`step_features`: the distance to the region's plane and |cos| between the voxel's normal and the region's.
+0 on walls). Weights of feature layout 3 (shipped since round P2:
+docs/decisions.md#round-p2-lrgnet-plane-features-full-size) read two more per step, appended by `step_features`:
+the distance to the region's plane and |cos| between the voxel's normal and the region's.
 """
 
 from __future__ import annotations
