@@ -22,7 +22,7 @@ import json
 from contextlib import suppress
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any, Final, TextIO
+from typing import IO, Any, Final
 
 import numpy as np
 
@@ -105,8 +105,8 @@ class FileExportSink(Sink):
         self._structure: tuple[list[Element], list[str]] | None = None
         self.force = force
         self._info: RunInfo | None = None
-        self._tum: TextIO | None = None
-        self._kitti: TextIO | None = None
+        self._tum: IO[str] | None = None
+        self._kitti: IO[str] | None = None
         self._tum_out = StreamedOutput(self.tum_path)
         self._kitti_out = StreamedOutput(self.kitti_path)
         self._written: set[int] = set()
