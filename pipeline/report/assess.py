@@ -148,14 +148,14 @@ def _angle_deg(p: list[float], q: list[float]) -> float:
 NEAR_LIMIT: Final = "within measurement uncertainty of the limit"
 
 
-def over(value: float | None, uncertainty: float | None, limit: float) -> bool:
+def exceeds(value: float | None, uncertainty: float | None, limit: float) -> bool:
     """Evidence that `value` exceeds `limit`: by more than its uncertainty (none stated: the value alone)."""
     return value is not None and value - (uncertainty or 0.0) > limit
 
 
-def near(value: float | None, uncertainty: float | None, limit: float) -> bool:
+def straddles(value: float | None, uncertainty: float | None, limit: float) -> bool:
     """`limit` lies within value ± uncertainty, and the value is no evidence of exceeding it."""
-    return value is not None and not over(value, uncertainty, limit) and value + (uncertainty or 0.0) > limit
+    return value is not None and not exceeds(value, uncertainty, limit) and value + (uncertainty or 0.0) > limit
 
 
 def ratio_uncertainty(s: dict[str, Any]) -> float | None:
@@ -170,11 +170,11 @@ def _flag(
 ) -> str | None:
     if ratio is None and tilt is None:
         return None
-    if over(ratio, ratio_u, cfg.drift_unsafe_ratio) or over(tilt, tilt_u, cfg.tilt_unsafe_deg):
+    if exceeds(ratio, ratio_u, cfg.drift_unsafe_ratio) or exceeds(tilt, tilt_u, cfg.tilt_unsafe_deg):
         return UNSAFE
-    if over(ratio, ratio_u, cfg.drift_restricted_ratio) or over(tilt, tilt_u, cfg.tilt_restricted_deg):
+    if exceeds(ratio, ratio_u, cfg.drift_restricted_ratio) or exceeds(tilt, tilt_u, cfg.tilt_restricted_deg):
         return RESTRICTED
-    if near(ratio, ratio_u, cfg.drift_restricted_ratio) or near(tilt, tilt_u, cfg.tilt_restricted_deg):
+    if straddles(ratio, ratio_u, cfg.drift_restricted_ratio) or straddles(tilt, tilt_u, cfg.tilt_restricted_deg):
         return NEAR_LIMIT
     return "within limits"
 
@@ -585,8 +585,8 @@ def checklist_and_findings(
     # Building or storey leaning: drift ratio per storey
     drifted = [s for s in levels if s["drift_ratio"] is not None]
     limit_text = f"1/{round(1 / cfg.drift_restricted_ratio)}"
-    exceeded = [s for s in drifted if over(s["drift_ratio"], ratio_uncertainty(s), cfg.drift_restricted_ratio)]
-    close = [s for s in drifted if near(s["drift_ratio"], ratio_uncertainty(s), cfg.drift_restricted_ratio)]
+    exceeded = [s for s in drifted if exceeds(s["drift_ratio"], ratio_uncertainty(s), cfg.drift_restricted_ratio)]
+    close = [s for s in drifted if straddles(s["drift_ratio"], ratio_uncertainty(s), cfg.drift_restricted_ratio)]
     close_text = "".join(
         f"; storey {s['index']}: {s['drift_mm']:.1f} ± {_pm(s)} mm = {s['drift_ratio_text']}, {NEAR_LIMIT} {limit_text}"
         for s in close
@@ -631,7 +631,7 @@ def checklist_and_findings(
         tilted: list[dict[str, Any]] = []
         if key == "slabs":
             lim = cfg.tilt_restricted_deg
-            tilted = [s for s in levels if over(s["tilt_deg"], s["tilt_uncertainty_deg"], lim)]
+            tilted = [s for s in levels if exceeds(s["tilt_deg"], s["tilt_uncertainty_deg"], lim)]
             tilts = [s for s in levels if s["tilt_deg"] is not None]
             if tilts:
                 extra = "; slab tilt " + ", ".join(_tilt_text(s, lim) for s in tilts)
@@ -659,7 +659,9 @@ def checklist_and_findings(
                 )
             lim = cfg.tilt_restricted_deg
             parts += [
-                "slab tilt " + _tilt_text(s, lim) for s in levels if near(s["tilt_deg"], s["tilt_uncertainty_deg"], lim)
+                "slab tilt " + _tilt_text(s, lim)
+                for s in levels
+                if straddles(s["tilt_deg"], s["tilt_uncertainty_deg"], lim)
             ]
             where = [_where(m, ENTITY_CRACKS)] if on else [_where(m, ENTITY_STORIES)]
             items.append(_item(item, FOUND, "; ".join(parts), where))
@@ -697,7 +699,7 @@ def _tilt_pm(s: dict[str, Any]) -> str:
 def _tilt_text(s: dict[str, Any], limit: float) -> str:
     """`storey 0 0.36 ± 1.32°`, and when the limit lies inside value ± uncertainty, saying so."""
     text = f"storey {s['index']} {_tilt_pm(s)}"
-    if near(s["tilt_deg"], s.get("tilt_uncertainty_deg"), limit):
+    if straddles(s["tilt_deg"], s.get("tilt_uncertainty_deg"), limit):
         text += f" ({NEAR_LIMIT} {limit}°)"
     return text
 
