@@ -34,7 +34,7 @@ ITEMS = [
     "floors and slabs",
     "debris blocking exits",
 ]
-STOREY_KEYS = {"drift_mm", "drift_ratio", "tilt_deg", "uncertainty_mm", "reason"}
+STOREY_KEYS = {"drift_mm", "drift_ratio", "tilt_deg", "tilt_uncertainty_deg", "uncertainty_mm", "reason"}
 
 
 def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -62,7 +62,7 @@ def _check_promise(data: dict) -> None:
             continue
         for s in m["storeys"]:
             assert set(s) >= STOREY_KEYS
-            for key in ("drift_mm", "drift_ratio", "tilt_deg", "uncertainty_mm"):
+            for key in ("drift_mm", "drift_ratio", "tilt_deg", "tilt_uncertainty_deg", "uncertainty_mm"):
                 if s[key] is None:
                     assert s["reason"], (key, s)
         assert [i["item"] for i in m["checklist"]] == ITEMS
@@ -147,23 +147,29 @@ def test_a_frame_with_storeys_gets_drift_ratios_flags_and_a_posting(
         assert error <= s["uncertainty_mm"]
         assert s["drift_ratio"] == pytest.approx(s["drift_mm"] / 1000 / s["height_m"], rel=1e-3)
         assert s["drift_ratio_text"] == f"1/{round(1 / s['drift_ratio'])}"
-        ratio, tilt = s["drift_ratio"], s["tilt_deg"]
-        if ratio >= limits.drift_unsafe_ratio or tilt >= limits.tilt_unsafe_deg:
+        assert s["tilt_uncertainty_deg"] > 0  # measured from the slabs' own points
+        # evidence of exceeding a limit: value - uncertainty above it
+        ratio = s["drift_ratio"] - s["uncertainty_mm"] / 1000 / s["height_m"]
+        tilt = s["tilt_deg"] - s["tilt_uncertainty_deg"]
+        if ratio > limits.drift_unsafe_ratio or tilt > limits.tilt_unsafe_deg:
             assert s["flag"] == "unsafe"
             worst = "unsafe"
-        elif ratio >= limits.drift_restricted_ratio or tilt >= limits.tilt_restricted_deg:
+        elif ratio > limits.drift_restricted_ratio or tilt > limits.tilt_restricted_deg:
             assert s["flag"] == "restricted use"
             worst = worst if worst == "unsafe" else "restricted use"
         else:
-            assert s["flag"] == "within limits"
+            assert s["flag"] in {"within limits", "within measurement uncertainty of the limit"}
     leaning = next(i for i in m["checklist"] if i["item"] == "building or storey leaning")
     assert leaning["status"] in {"found", "none"} and "mm" in leaning["evidence"]
     if worst != "inspected":
         assert m["posting"]["suggested"] in {worst, "unsafe"}
     kinds = [(f["kind"], f["storey"]) for f in m["findings"]]
     for s in m["storeys"]:  # every storey over a limit is a numbered finding
-        assert (("drift", s["index"]) in kinds) == (s["drift_ratio"] >= limits.drift_restricted_ratio)
-        assert (("tilt", s["index"]) in kinds) == (s["tilt_deg"] >= limits.tilt_restricted_deg)
+        ratio = s["drift_ratio"] - s["uncertainty_mm"] / 1000 / s["height_m"]
+        assert (("drift", s["index"]) in kinds) == (ratio > limits.drift_restricted_ratio)
+        assert (("tilt", s["index"]) in kinds) == (
+            s["tilt_deg"] - s["tilt_uncertainty_deg"] > limits.tilt_restricted_deg
+        )
     assert [f["number"] for f in m["findings"]] == list(range(1, len(m["findings"]) + 1))
     _chromium_ok(folder / "report.html")
 
