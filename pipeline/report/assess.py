@@ -671,7 +671,12 @@ def checklist_and_findings(
             items.append(_item(item, NOT_ASSESSABLE, f"{seen} seen; cracks: {crk['reason']}"))
         else:
             assessed = "no crack found where assessed" if crk["assessed"] else f"cracks: {crk['reason']}"
-            status = NONE if crk["assessed"] or extra else NOT_ASSESSABLE
+            # a tilt whose uncertainty reaches across the limit settles nothing: with no crack assessment either,
+            # the slabs were not assessable (which does not escalate the posting on its own)
+            unsettled = any(
+                straddles(s["tilt_deg"], s["tilt_uncertainty_deg"], cfg.tilt_restricted_deg) for s in levels
+            )
+            status = NONE if crk["assessed"] or (extra and not unsettled) else NOT_ASSESSABLE
             where = [_where(m, ENTITY_STORIES)] if extra else []
             items.append(_item(item, status, f"{seen} seen; {assessed}{extra}", where))
     # Debris blocking exits
