@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup demo test test-faults lint bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real bench-all train screenshot clean
+.PHONY: setup browser demo test test-faults lint bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -22,7 +22,11 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/aftershock run --save out/demo.rrd --export out/demo --force
 
-test: setup
+# The report's page is checked in headless Chromium (Debian's package, driven by playwright from the dev extras).
+browser:
+	@command -v chromium >/dev/null || { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q chromium; }
+
+test: setup browser
 	$(BIN)/ruff check .
 	$(BIN)/pytest -q
 

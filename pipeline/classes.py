@@ -61,6 +61,8 @@ CLASS_COLORS: Final[np.ndarray] = np.array(
     dtype=np.uint8,
 )
 UNLABELLED_COLOR: Final[np.ndarray] = np.array([40, 40, 40], dtype=np.uint8)
+# Voxels whose label the labeller is unsure of are drawn again in this colour over the map (no class has it).
+UNCERTAIN_COLOR: Final[np.ndarray] = np.array([255, 0, 200], dtype=np.uint8)  # magenta
 
 STRUCTURAL_CLASSES: Final[frozenset[SemanticClass]] = frozenset(
     {SemanticClass.CEILING, SemanticClass.FLOOR, SemanticClass.WALL, SemanticClass.BEAM, SemanticClass.COLUMN}

@@ -16,7 +16,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNLABELLED_COLOR
+from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNCERTAIN_COLOR, UNLABELLED_COLOR
 
 # Timelines. `message_log_time` and `ros2_timestamp` are the names Rerun's own MCAP import gives the MCAP log
 # time and the ROS 2 header stamp (absolute ns), so a recording lines up with the imported log in one viewer.
@@ -64,10 +64,11 @@ HIDDEN_BY_DEFAULT: Final[tuple[str, ...]] = (
 
 
 def legend() -> tuple[rr.Points2D, rr.Points2D]:
-    """The legend: a coloured disc per class (and unlabelled), in class order down columns, and beside each its
-    name in white (a label takes its point's colour, which on some discs would not read)."""
-    names = [*CLASS_NAMES, "unlabelled"]
-    colors = np.vstack([CLASS_COLORS, UNLABELLED_COLOR[None]])
+    """The legend: a coloured disc per class (then unlabelled, and the colour of voxels drawn as uncertain), in
+    class order down columns, and beside each its name in white (a label takes its point's colour, which on some
+    discs would not read)."""
+    names = [*CLASS_NAMES, "unlabelled", "uncertain label"]
+    colors = np.vstack([CLASS_COLORS, UNLABELLED_COLOR[None], UNCERTAIN_COLOR[None]])
     k = np.arange(len(names))
     at = np.c_[(k // LEGEND_ROWS) * LEGEND_COLUMN_STEP, k % LEGEND_ROWS].astype(np.float64)
     discs = rr.Points2D(at, colors=colors, radii=0.4)

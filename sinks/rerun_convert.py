@@ -9,7 +9,14 @@ from typing import Final
 import numpy as np
 import rerun as rr
 
-from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNLABELLED, UNLABELLED_COLOR, instance_colors
+from aftershock.pipeline.classes import (
+    CLASS_COLORS,
+    CLASS_NAMES,
+    UNCERTAIN_COLOR,
+    UNLABELLED,
+    UNLABELLED_COLOR,
+    instance_colors,
+)
 from aftershock.pipeline.geometry import voxel_downsample
 from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Scan, Story
 
@@ -19,7 +26,6 @@ FIT_SAMPLE: Final = 20_000  # embeddings the colour projection is fitted on
 SCAN_RADIUS: Final = rr.Radius.ui_points(1.5)
 MAP_RADIUS_OF_VOXEL: Final = 0.2  # map points drawn with a world-space radius of this fraction of the voxel
 UNCERTAIN_RADIUS_OF_VOXEL: Final = 0.35  # uncertain voxels drawn larger than the map's, over them
-UNCERTAIN_COLOR: Final = (255, 0, 200)  # magenta: no class has it
 CRACK_RADIUS: Final = rr.Radius.ui_points(3.0)
 TRAJECTORY_COLOR: Final = (255, 210, 0)
 GROWTH_INLIER_COLOR: Final = (60, 220, 90)

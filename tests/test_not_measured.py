@@ -85,8 +85,8 @@ def test_the_viewer_says_not_measured_and_draws_no_arrow(tmp_path: Path) -> None
 
 def test_the_legend_names_every_class_in_its_colour(tmp_path: Path) -> None:
     """The legend (visible in the default layout's "site" tab) holds one disc per class in the class colour and
-    each class's name."""
-    from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES
+    each class's name, then unlabelled and the colour uncertain voxels are drawn in."""
+    from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNCERTAIN_COLOR
 
     path = tmp_path / "legend.rrd"
     sink = RerunSink(path, False, None, RerunConfig())
@@ -94,11 +94,12 @@ def test_the_legend_names_every_class_in_its_colour(tmp_path: Path) -> None:
     sink.close()
     rec = read_rrd(path)
     names = rec.texts(L.LEGEND_NAMES, "Points2D:labels", static=True)
-    assert names == [*CLASS_NAMES, "unlabelled"]
+    assert names == [*CLASS_NAMES, "unlabelled", "uncertain label"]
     [colors] = rec.rows(L.LEGEND_SWATCHES, "Points2D:colors", static=True)
     rgba = np.array(colors, dtype=np.uint32)
     rgb = np.stack([(rgba >> 24) & 255, (rgba >> 16) & 255, (rgba >> 8) & 255], axis=1)
     assert np.array_equal(rgb[: len(CLASS_NAMES)], CLASS_COLORS)
+    assert np.array_equal(rgb[-1], UNCERTAIN_COLOR)
 
 
 def test_the_default_layout_opens_on_the_site_with_a_plan_and_the_legend() -> None:

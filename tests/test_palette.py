@@ -1,5 +1,5 @@
-"""The class palette: every two classes clearly apart (CIE76 ΔE), and apart from the viewer's background and
-the unlabelled grey; the smallest distances are printed."""
+"""The class palette: every two classes clearly apart (CIE76 ΔE), and apart from the viewer's background, the
+unlabelled grey and the magenta of uncertain voxels; the smallest distances are printed."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import itertools
 
 import numpy as np
 
-from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNLABELLED_COLOR, cie_lab
+from aftershock.pipeline.classes import CLASS_COLORS, CLASS_NAMES, UNCERTAIN_COLOR, UNLABELLED_COLOR, cie_lab
 
 MIN_DELTA_E = 25.0  # ΔE76 above ~10 reads as a different colour at a glance; 25 leaves room for shading
 BACKGROUND = np.array([18, 18, 22])  # sinks/rerun_blueprint.py: the 3D view's background
@@ -27,7 +27,7 @@ def test_every_two_classes_are_clearly_distinct() -> None:
     for d, a, b in pairs[:3]:
         print(f"ΔE76 {d:.1f}: {a} / {b}")
     assert pairs[0][0] >= MIN_DELTA_E, pairs[0]
-    against = {"background": BACKGROUND, "unlabelled": UNLABELLED_COLOR}
+    against = {"background": BACKGROUND, "unlabelled": UNLABELLED_COLOR, "uncertain": UNCERTAIN_COLOR}
     for what, color in against.items():
         d = np.linalg.norm(lab - cie_lab(color), axis=1)
         print(f"ΔE76 {d.min():.1f}: {CLASS_NAMES[int(d.argmin())]} / {what}")
