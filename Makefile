@@ -7,7 +7,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export CI ?= true
 export RERUN_ANALYTICS ?= 0
 
-.PHONY: setup browser demo test test-faults lint bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real bench-all train screenshot clean
+.PHONY: setup browser demo test test-faults lint typecheck bench bench-stream bench-long bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real bench-all train screenshot clean
 
 setup: $(STAMP)
 
@@ -26,8 +26,10 @@ demo: setup
 browser:
 	@command -v chromium >/dev/null || { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q chromium; }
 
+# mypy (below) takes about a minute of one core from a fresh clone, seconds with its cache in .mypy_cache.
 test: setup browser
 	$(BIN)/ruff check .
+	$(MYPY)
 	$(BIN)/pytest -q
 
 # Faults and hostile input on their own (also part of `make test`): full disks through a small tmpfs (needs root,
@@ -38,48 +40,58 @@ test-faults: setup
 lint: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(MYPY)
+
+# mypy on the installed names (pyproject.toml [tool.mypy]). The editable install maps `aftershock.*` with an import
+# hook that mypy cannot follow, so a link `aftershock` to this folder stands in; the report names the files as here.
+MYPY_PATH := $(VENV)/mypy-path
+MYPY = @mkdir -p $(MYPY_PATH) && ln -sfn $(CURDIR) $(MYPY_PATH)/aftershock && \
+	MYPYPATH=$(MYPY_PATH) $(BIN)/mypy > $(MYPY_PATH)/report.txt; rc=$$?; \
+	sed 's|^$(MYPY_PATH)/aftershock/||' $(MYPY_PATH)/report.txt; exit $$rc
+typecheck: setup
+	$(MYPY)
 
 # Speed and memory of the whole stream (VLP-16 simulated missions with Rerun recording to a file).
 bench: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_pipeline.py
 
 # Its halves: the 300-scan stream against KISS-ICP alone (sequential and overlapped), and the 3,000-scan
 # mission (memory, compacted recording, web viewer picture; needs `pip install -e '.[screenshot]'` and chromium).
 bench-stream: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py -k whole_stream
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_pipeline.py -k whole_stream
 
 bench-long: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_pipeline.py -k long_mission
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_pipeline.py -k long_mission
 
 # Decoding, simulation and sink throughput.
 bench-io: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_sources.py tests/bench_simulator.py tests/bench_sinks.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_sources.py tests/bench/bench_simulator.py tests/bench/bench_sinks.py
 
 bench-mcpnet: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_mcpnet.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_mcpnet.py
 
 # Objects shown against true objects (instance precision/recall) on held-out missions, KISS-ICP and true poses.
 bench-objects: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_objects.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_objects.py
 
 bench-cracks: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_cracks_region.py tests/bench_cracks_ridge.py tests/bench_cracks.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_cracks_region.py tests/bench/bench_cracks_ridge.py tests/bench/bench_cracks.py
 
 bench-lrgnet: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_lrgnet.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_lrgnet.py
 
 # In-family against a scene generator no network was trained or tuned on, with and without colour.
 bench-transfer: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_transfer.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_transfer.py
 
 # Many missions at once: 8 simulated 300-scan missions on a local Ray instance, 2 workers against 1.
 bench-batch: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_batch.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_batch.py
 
 # Every real log in ../shared/data/lidar: floor, ceiling and wall agreement with planes found without the labeller
 # (pipeline.planecheck), the class shares of each map, the run's warnings (REAL_ARGS: options for every run).
 bench-real: setup
-	$(BIN)/pytest -q -m slow -s tests/bench_real.py
+	$(BIN)/pytest -q -m slow -s tests/bench/bench_real.py
 
 bench-all: bench bench-io bench-mcpnet bench-objects bench-cracks bench-lrgnet bench-transfer bench-batch bench-real
 
@@ -101,4 +113,4 @@ screenshot: demo
 	$(BIN)/python ../shared/tools/rrd_screenshot.py out/demo.rrd docs/demo.png --wait 60
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out .pytest_cache .mypy_cache

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from aftershock.models.crackembed import WEIGHTS, CrackEmbed, point_inputs, save_weights
+from aftershock.models.optimise import descend
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.damage.measure import components
 
@@ -47,6 +48,7 @@ def training_element(seed: int, rng: np.random.Generator) -> tuple[np.ndarray, n
     crack_pts = pts[mask] if mask.any() else pts
     centre = crack_pts[rng.integers(len(crack_pts))]
     keep = np.all(np.abs(pts - centre) <= WINDOW_M / 2, axis=1)
+    assert cloud.colors is not None, "simulated elements are coloured"
     pts, colors, mask = pts[keep], cloud.colors[keep], mask[keep]
     sid = np.zeros(len(pts), np.int64)
     sid[mask] = components(pts[mask], max(3.0 * spacing, 0.01), 1)
@@ -114,9 +116,7 @@ def train(out: Path | None = None, seed: int = 0, epochs: int | None = None, for
             idx = np.concatenate([rng.choice(members[s], size=POINTS_PER_SURFACE) for s in chosen])
             emb = model(torch.from_numpy(nb[idx]), torch.from_numpy(own[idx]))
             loss = _batch_all_triplet(emb, torch.from_numpy(inverse[idx]))
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+            descend(opt, loss)
             epoch_loss += float(loss.detach())
         losses.append(epoch_loss / STEPS_PER_EPOCH)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import itertools
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, cast
 
 import torch
 from torch import nn
@@ -63,7 +63,7 @@ class Head(nn.Module):
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(widths))
 
     def forward(self, global_feature: torch.Tensor, local: torch.Tensor) -> torch.Tensor:
-        first = self.layers[0]
+        first = cast(nn.Linear, self.layers[0])  # a ModuleList indexes as Module
         g = F.linear(global_feature, first.weight[:, : self.global_width], first.bias)  # (B, 256)
         x = F.relu(F.linear(local, first.weight[:, self.global_width :]) + g.unsqueeze(-2))
         for layer in self.layers[1:-1]:
@@ -134,7 +134,7 @@ def load_weights(path: str | Path, expected: dict[str, Any], layouts: dict[int, 
     settings = header.get("settings", {})
     if not isinstance(settings, dict):
         raise InputError(f"not an LRGNet weights file: its settings are a {type(settings).__name__}; {REBUILD_HINT}", p)
-    layout = (settings.get("feature_version"), settings.get("features"))
+    layout: tuple[Any, Any] = (settings.get("feature_version"), settings.get("features"))  # as the file has them
     if layouts.get(layout[0]) != layout[1]:
         known = ", ".join(f"{v} ({n} features)" for v, n in layouts.items())
         raise InputError(

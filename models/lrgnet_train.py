@@ -32,6 +32,7 @@ from torch.nn import functional as F
 
 from aftershock.models import transfer_split as split
 from aftershock.models.lrgnet import BRANCH_WIDTHS, HEAD_WIDTHS, LRGNet, num_parameters, save_weights
+from aftershock.models.optimise import descend
 from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.config import LRGNetConfig
 from aftershock.pipeline.refine.features import (
@@ -150,7 +151,7 @@ def simulate_growth(
     m = len(vc)
     done = np.zeros(m, bool)
     in_region = np.zeros(m, bool)
-    out = []
+    out: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     for seed in rng.permutation(m):
         if max_samples is not None and len(out) >= max_samples:
             break
@@ -403,10 +404,7 @@ def fit(
         for start in range(0, len(order), BATCH):
             xi, xn, rm, add = batch_tensors(train_set, order[start : start + BATCH], rng, plane)
             loss = losses(net, xi, xn, rm, add)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
+            descend(opt, loss, sched)
             total += loss.item() * len(rm)
             count += len(rm)
             if (start // BATCH + 1) % 200 == 0:

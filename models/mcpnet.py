@@ -184,6 +184,14 @@ def load_model(path: str | Path, kind: str | None = None) -> tuple[nn.Module, Ne
     return model, cfg, blob.get("figures", {})
 
 
+def load_mcpnet(path: str | Path, kind: str = "mcpnet") -> tuple[MCPNet, NetConfig, dict[str, Any]]:
+    """`load_model` for a kind of MCPNet (with context or without): the network as an MCPNet."""
+    model, cfg, figures = load_model(path, kind=kind)
+    if not isinstance(model, MCPNet):
+        raise InputError(f"weights are for {cfg.kind!r}, not an MCPNet; {REBUILD_HINT}", path)
+    return model, cfg, figures
+
+
 def floor_height(world_points: np.ndarray) -> float:
     """The scan's floor: a low percentile of the whole scan's heights (robust to a few stray returns). One
     function for training and labelling, so that height above the floor means the same in both."""

@@ -33,6 +33,7 @@ from aftershock.models.mcpnet import (
     save_weights,
 )
 from aftershock.models.netconfig import CONTEXT_DIM, POINT_DIM, TRANSFER_FEATURES, NetConfig
+from aftershock.models.optimise import descend
 from aftershock.models.pointnet import PointNet
 from aftershock.models.weights_file import WEIGHTS_DIR
 from aftershock.pipeline.classes import UNLABELLED
@@ -234,7 +235,7 @@ class Pool:
         np.add.at(sums, inst_of_sample, self.positions[self.rows])
         self.inst_centre = (sums / count[:, None])[good]
         self.inst_mission = (ids[good] >> 32).astype(np.int64)
-        self._crop_tree = None  # built on the first `crop_batch`
+        self._crop_tree: Any = None  # a scipy cKDTree (untyped), built on the first `crop_batch`
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -443,6 +444,7 @@ def train_mcpnet(
                 wide_pooled = model.pool_pairs(
                     torch.from_numpy(wide[owner, at]), torch.from_numpy(owner), len(idx), True
                 )
+                assert pooled is not None, "the wide context comes with the context"
                 pooled = torch.cat([pooled, wide_pooled], dim=1)
             emb, logits = model.head(torch.from_numpy(pf), pooled)
             labels = torch.from_numpy(pool.sample_class[idx])
@@ -460,10 +462,7 @@ def train_mcpnet(
                 lc = weighted_class_loss(ce, logits, labels, len(inst_idx), crop_class_weight)
             else:
                 lc = ce(logits, labels)
-            opt.zero_grad()
-            (lt + lc).backward()
-            opt.step()
-            sched.step()
+            descend(opt, lt + lc, sched)
             tot_t += float(lt.detach())
             tot_c += float(lc.detach())
             acc += float((logits.argmax(1) == labels).float().mean())
@@ -548,10 +547,7 @@ def train_pointnet(
                 sel = _instance_subset(insts[b], masks[b], rng)
                 if len(sel):
                     lt = lt + semihard_triplet_loss(emb[b, sel], torch.from_numpy(insts[b][sel])) / len(pick)
-            opt.zero_grad()
-            (lt + lc).backward()
-            opt.step()
-            sched.step()
+            descend(opt, lt + lc, sched)
             tot_t += float(lt.detach())
             tot_c += float(lc.detach())
             valid = lab >= 0
@@ -679,23 +675,30 @@ def train(
             if kind in kinds:
                 cfg = NetConfig(kind=kind)
                 # MCPNet's own recipe; the no-context network stays the baseline it was
-                own, crops = (
-                    (MCPNET_EPOCHS, {"crop_batches": CROP_BATCHES, "affinity_weight": AFFINITY_WEIGHT})
-                    if kind == "mcpnet"
-                    else (EPOCHS, {})
+                own, crop_batches, affinity_weight = (
+                    (MCPNET_EPOCHS, CROP_BATCHES, AFFINITY_WEIGHT) if kind == "mcpnet" else (EPOCHS, 0.0, 0.0)
                 )
-                model, fig = train_mcpnet(pool, cfg, own if epochs is None else epochs, seed, **crops)
+                model, fig = train_mcpnet(
+                    pool,
+                    cfg,
+                    own if epochs is None else epochs,
+                    seed,
+                    crop_batches=crop_batches,
+                    affinity_weight=affinity_weight,
+                )
+                crops = {"crop_batches": CROP_BATCHES, "affinity_weight": AFFINITY_WEIGHT} if kind == "mcpnet" else {}
                 keep(kind, model, cfg, recipe | crops, fig)
         if "pointnet" in kinds:
             cfg = NetConfig(kind="pointnet")
-            model, fig = train_pointnet(missions, cfg, POINTNET_EPOCHS if epochs is None else epochs, seed)
-            keep("pointnet", model, cfg, recipe, fig)
+            pointnet, fig = train_pointnet(missions, cfg, POINTNET_EPOCHS if epochs is None else epochs, seed)
+            keep("pointnet", pointnet, cfg, recipe, fig)
         del missions, pool
     if "mcpnet-nocolor" in kinds:
         t0 = time.perf_counter()
         cfg = mcpnet_config()
         uris = transfer_uris(TRAIN_SEEDS, TRANSFER_SCANS, generators)
         pool = Pool(stage_uris(uris, cfg))
+        transfer_epochs = TRANSFER_EPOCHS if epochs is None else epochs
         recipe = {
             "train_seeds": list(TRAIN_SEEDS),
             "generators": list(generators),
@@ -709,7 +712,7 @@ def train(
             "affinity_weight": TRANSFER_AFFINITY_WEIGHT,
             "crop_class_weight": TRANSFER_CROP_CLASS_WEIGHT,
             "training_points": len(pool),
-            "epochs": TRANSFER_EPOCHS if epochs is None else epochs,
+            "epochs": transfer_epochs,
             "range_m": cfg.range_m,
             "seed": seed,
             "staging_seconds": round(time.perf_counter() - t0, 1),
@@ -718,7 +721,7 @@ def train(
         model, fig = train_mcpnet(
             pool,
             cfg,
-            recipe["epochs"],
+            transfer_epochs,
             seed,
             color_drop=TRANSFER_COLOR_DROP,
             per_mission=True,

@@ -9,7 +9,7 @@ import signal
 import sys
 import threading
 import warnings
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import typer
 
@@ -28,6 +28,9 @@ from aftershock.pipeline.commands import (
 )
 from aftershock.pipeline.errors import AftershockError, DamagedLogWarning
 from aftershock.pipeline.text import SafeFormatter, safe
+
+if TYPE_CHECKING:
+    from typer._click.core import Context  # what typer hands an option's methods: its own copy of click's
 
 EXIT_SIGINT: Final = 130  # 128 + the signal's number, as shells report a process a signal ended
 EXIT_SIGTERM: Final = 143
@@ -78,7 +81,7 @@ def _untag_flags() -> None:
     if getattr(shown, "untagged", False):
         return
 
-    def display_type_rich(self: TyperOption, ctx: typer.Context) -> str | None:
+    def display_type_rich(self: TyperOption, ctx: Context) -> str | None:
         return None if self.is_flag else shown(self, ctx)
 
     display_type_rich.untagged = True  # type: ignore[attr-defined]

@@ -170,7 +170,7 @@ def finite_points(
 def _read_with_open3d(p: Path) -> LabelledCloud:
     import open3d as o3d
 
-    pcd = o3d.io.read_point_cloud(str(p))
+    pcd = o3d.io.read_point_cloud(p)
     if len(pcd.points) == 0:
         raise InputError("no points could be read", p)
     colors = (np.asarray(pcd.colors) * 255).astype(np.uint8) if pcd.has_colors() else None

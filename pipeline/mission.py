@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, is_dataclass
 from importlib import resources
 from pathlib import Path
 from time import perf_counter
@@ -318,8 +318,8 @@ class OnDemand:
 def _jsonable(obj: object) -> object:
     if hasattr(obj, "tolist"):
         return obj.tolist()
-    if hasattr(obj, "__dataclass_fields__"):
-        return asdict(obj)  # type: ignore[arg-type]
+    if is_dataclass(obj) and not isinstance(obj, type):
+        return asdict(obj)
     return str(obj)
 
 

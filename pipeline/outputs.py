@@ -20,7 +20,7 @@ import errno
 import fcntl
 import os
 import stat
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import IO, Any, Final
 
@@ -101,7 +101,7 @@ def check_output(
     return p
 
 
-def check_distinct(outputs: dict[str, str | Path | None]) -> None:
+def check_distinct(outputs: Mapping[str, str | Path | None]) -> None:
     """Refuse two options naming one file (`--save P --mcap-out P`), through links."""
     given = [(option, Path(p)) for option, p in outputs.items() if p is not None]
     for i, (option, a) in enumerate(given):

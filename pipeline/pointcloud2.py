@@ -14,11 +14,14 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
 from aftershock.pipeline.types import Scan
+
+if TYPE_CHECKING:
+    from mcap.writer import Writer
 
 
 class PointFieldType(IntEnum):
@@ -589,6 +592,13 @@ def serialize_pointcloud2(msg: Mapping[str, Any]) -> bytes:
     w.raw(data)
     w.put("?", bool(msg["is_dense"]))
     return w.bytes()
+
+
+def register_cloud_and_pose(writer: Writer, points_topic: str, pose_topic: str) -> tuple[int, int]:
+    """The channels of a ROS 2 MCAP for PointCloud2 scans and PoseStamped poses (CDR): their ids, in that order."""
+    cloud = writer.register_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSGDEF.encode())
+    pose = writer.register_schema("geometry_msgs/msg/PoseStamped", "ros2msg", POSE_STAMPED_MSGDEF.encode())
+    return writer.register_channel(points_topic, "cdr", cloud), writer.register_channel(pose_topic, "cdr", pose)
 
 
 def serialize_pose_stamped(msg: Mapping[str, Any]) -> bytes:

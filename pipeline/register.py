@@ -14,7 +14,7 @@ stream goes on; the labelling stage leaves such frames out of the map.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable
 from dataclasses import dataclass
 from time import perf_counter
 from typing import Final
@@ -124,12 +124,12 @@ class Registrar:
         prediction = self.kiss.last_pose @ delta
         self._fraction = self._sweep_fraction(scan)
         points = scan.points
-        if self._fraction > 0:
+        if self._fraction > 0 and scan.times is not None:
             points = deskew(points, scan.times, sweep_motion(delta, self._fraction))
         ranges = norms(points)
         usable = int(((ranges > self.settings.min_range_m) & (ranges < self.settings.max_range_m)).sum())
         if usable < MIN_POINTS:
-            self._skip(frame, prediction, f"only {usable} points within range; pose predicted from motion")
+            world_pose = self._skip(frame, prediction, f"only {usable} points within range; pose predicted from motion")
         else:
             if not self._level_decided:
                 self._decide_level(points, scan.seq)
@@ -137,9 +137,9 @@ class Registrar:
             pose = self.kiss.last_pose
             correction = float(np.linalg.norm((np.linalg.inv(prediction) @ pose)[:3, 3]))
             if not np.isfinite(pose).all():
-                self._skip(frame, prediction, "ICP gave a non-finite pose; pose predicted from motion")
+                world_pose = self._skip(frame, prediction, "ICP gave a non-finite pose; pose predicted from motion")
             else:
-                frame.pose = self.level @ pose
+                world_pose = frame.pose = self.level @ pose
                 if self.frames > 1 and correction > self.cfg.max_correction_m:
                     frame.registration_ok = False
                     frame.registration_note = (
@@ -147,8 +147,8 @@ class Registrar:
                     )
                     # The motion since the last scan is not to be trusted as a prediction of the next one.
                     self.kiss.last_delta = np.eye(4)
-        frame.world_points = transform(frame.pose, points)
-        frame.stamp_pose = self._stamp_pose(frame)
+        frame.world_points = transform(world_pose, points)
+        frame.stamp_pose = self._stamp_pose(world_pose, scan.times)
         self.frames += 1
         self._last_stamp_ns = scan.stamp_ns
         if not frame.registration_ok:
@@ -168,14 +168,13 @@ class Registrar:
             return 1.0
         return min(1.0, span / ((scan.stamp_ns - self._last_stamp_ns) * 1e-9))
 
-    def _stamp_pose(self, frame: Frame) -> np.ndarray:
-        """The pose at the scan stamp: the end-of-sweep pose moved back along this sweep's motion."""
-        times = frame.scan.times
+    def _stamp_pose(self, pose: np.ndarray, times: np.ndarray | None) -> np.ndarray:
+        """The pose at the scan stamp: the end-of-sweep `pose` moved back along this sweep's motion."""
         if self._fraction <= 0 or times is None:
-            return frame.pose.copy()
+            return pose.copy()
         t0, t1 = float(times.min()), float(times.max())
         s = (0.0 - t0) / (t1 - t0)
-        return frame.pose @ se3_exp((s - 1.0) * se3_log(sweep_motion(self.kiss.last_delta, self._fraction)))
+        return pose @ se3_exp((s - 1.0) * se3_log(sweep_motion(self.kiss.last_delta, self._fraction)))
 
     def _decide_level(self, points: np.ndarray, seq: int) -> None:
         self._level_decided = True
@@ -190,11 +189,13 @@ class Registrar:
             seq, found.tilt_deg, found.floor_patches, found.wall_patches,
         )  # fmt: skip
 
-    def _skip(self, frame: Frame, prediction: np.ndarray, note: str) -> None:
+    def _skip(self, frame: Frame, prediction: np.ndarray, note: str) -> np.ndarray:
+        """Mark the frame as not registered, with the predicted pose; returns that pose."""
         self.kiss.last_pose = prediction
-        frame.pose = self.level @ prediction
+        frame.pose = pose = self.level @ prediction
         frame.registration_ok = False
         frame.registration_note = note
+        return pose
 
 
 class TruthPoses:
@@ -239,7 +240,7 @@ def make_registrar(cfg: RegisterConfig, environment: Environment) -> Registrar |
     return Registrar(cfg, environment)
 
 
-def register_stage(frames: Iterable[Frame], registrar: Registrar | TruthPoses) -> Iterator[Frame]:
+def register_stage(frames: Iterable[Frame], registrar: Registrar | TruthPoses) -> Generator[Frame, None, None]:
     for frame in frames:
         t0 = perf_counter()
         registrar.register(frame)

@@ -19,7 +19,7 @@ import queue
 import signal
 import sys
 import threading
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from time import perf_counter
@@ -55,7 +55,9 @@ log = logging.getLogger(__name__)
 STAGES: tuple[str, ...] = ("source", "register", "label", "structure", "cluster", "sinks")
 
 
-def stage_chain(scans: Iterable[Scan], run: _Run, sinks: Sequence[Sink]) -> tuple[Iterator[Frame], Iterator[Frame]]:
+def stage_chain(
+    scans: Iterable[Scan], run: _Run, sinks: Sequence[Sink]
+) -> tuple[Generator[Frame, None, None], Iterator[Frame]]:
     """The stages, chained lazily, every sink told after each: source -> register -> label (the network, then the
     structure model's fusion) -> cluster. Returns
     the registered frames (closed to stop the reading) and the clustered ones (iterated by `_loop`)."""
@@ -160,7 +162,7 @@ class _End:
     error: BaseException | None = None
 
 
-def _ahead(frames: Iterator[Frame], depth: int) -> Iterator[Frame]:
+def _ahead(frames: Iterator[Frame], depth: int) -> Generator[Frame, None, None]:
     """`frames` computed on a second thread, at most `depth` ahead of the consumer, in order. An exception
     there is raised here, in its turn; when the consumer stops (end, error, Ctrl-C, `close()`) the thread
     stops after the frame it is working on and is joined, so nothing reads the source behind the caller's back."""
@@ -229,6 +231,7 @@ MapHook = Callable[[LabelledCloud, Sequence[Sink]], None]
 def shown_map(vmap: VoxelMap, clusterer: InstanceClusterer) -> LabelledCloud:
     """The map as the user sees it: objects under the minimum size read as "no object"."""
     cloud = vmap.to_cloud()
+    assert cloud.instance_ids is not None, "the map carries instance ids"
     cloud.instance_ids = clusterer.shown_ids(cloud.instance_ids)
     return cloud
 
@@ -309,7 +312,9 @@ class _Run:
             self.summary.registration_failures.append(frame.seq)
         self.seqs.append(frame.seq)
         self.stamps.append(frame.scan.stamp_ns)
-        self.poses.append(frame.stamp_pose if frame.stamp_pose is not None else frame.pose)
+        pose = frame.stamp_pose if frame.stamp_pose is not None else frame.pose
+        assert pose is not None, "a frame has its pose once registered"
+        self.poses.append(pose)
         self.true_poses.append(frame.scan.gt_pose)
 
 

@@ -22,7 +22,7 @@ import json
 from contextlib import suppress
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any, Final, TextIO
+from typing import IO, Any, Final
 
 import numpy as np
 
@@ -91,18 +91,22 @@ class FileExportSink(Sink):
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError("exists and is not a folder", self.folder)
         self._lock = FolderLock(self.folder).acquire()
-        self.map_path = check_output(self.folder / MAP_FILE, force)
-        self.tum_path = check_output(self.folder / TUM_FILE, force)
-        self.kitti_path = check_output(self.folder / KITTI_FILE, force)
-        self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
-        self.refined_path = check_output(self.folder / REFINED_FILE, force) if refine else None
-        self.damage_path = check_output(self.folder / DAMAGE_FILE, force) if damage else None
-        self.structure_path = check_output(self.folder / STRUCTURE_FILE, force)
+        try:
+            self.map_path = check_output(self.folder / MAP_FILE, force)
+            self.tum_path = check_output(self.folder / TUM_FILE, force)
+            self.kitti_path = check_output(self.folder / KITTI_FILE, force)
+            self.summary_path = check_output(self.folder / SUMMARY_FILE, force)
+            self.refined_path = check_output(self.folder / REFINED_FILE, force) if refine else None
+            self.damage_path = check_output(self.folder / DAMAGE_FILE, force) if damage else None
+            self.structure_path = check_output(self.folder / STRUCTURE_FILE, force)
+        except OutputError:
+            self._lock.release()  # a refused sink is never closed: it must not keep the folder locked
+            raise
         self._structure: tuple[list[Element], list[str]] | None = None
         self.force = force
         self._info: RunInfo | None = None
-        self._tum: TextIO | None = None
-        self._kitti: TextIO | None = None
+        self._tum: IO[str] | None = None
+        self._kitti: IO[str] | None = None
         self._tum_out = StreamedOutput(self.tum_path)
         self._kitti_out = StreamedOutput(self.kitti_path)
         self._written: set[int] = set()

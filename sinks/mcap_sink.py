@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import BinaryIO, Final
+from typing import IO, Final
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
@@ -24,10 +24,9 @@ from aftershock.pipeline.classes import UNLABELLED, class_colors
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.outputs import StreamedOutput, check_output
 from aftershock.pipeline.pointcloud2 import (
-    POINTCLOUD2_MSGDEF,
-    POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
     pose_stamped_message,
+    register_cloud_and_pose,
     serialize_pointcloud2,
     serialize_pose_stamped,
 )
@@ -79,7 +78,7 @@ class McapSink(Sink):
     def __init__(self, path: Path, force: bool = False) -> None:
         self.path = check_output(path, force)
         self._out = StreamedOutput(self.path)  # written as NAME.part, renamed by `close`
-        self._file: BinaryIO | None = None
+        self._file: IO[bytes] | None = None
         self._writer: Writer | None = None
         self._points = self._pose = 0
         self._pending: dict[int, Frame] = {}
@@ -141,10 +140,7 @@ class McapSink(Sink):
             raise OutputError(f"cannot write: {exc.strerror}", self.path) from None
         writer = Writer(self._file, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library="aftershock")
-        cloud_schema = writer.register_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSGDEF.encode())
-        pose_schema = writer.register_schema("geometry_msgs/msg/PoseStamped", "ros2msg", POSE_STAMPED_MSGDEF.encode())
-        self._points = writer.register_channel(POINTS_TOPIC, "cdr", cloud_schema)
-        self._pose = writer.register_channel(POSE_TOPIC, "cdr", pose_schema)
+        self._points, self._pose = register_cloud_and_pose(writer, POINTS_TOPIC, POSE_TOPIC)
         self._writer = writer
         return writer
 

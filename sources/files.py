@@ -12,6 +12,7 @@ import re
 import struct
 import warnings
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 from typing import Final
 
@@ -171,7 +172,7 @@ def read_pcd(path: Path) -> dict[str, np.ndarray]:
                 for i, (name, base, c) in enumerate(zip(names, bases, counts, strict=True))
             ]
             rec = np.frombuffer(body, dtype=np.dtype(layout), count=n)
-            cols = {name: rec[name].copy() for name in rec.dtype.names if not name.startswith("_")}
+            cols = {name: rec[name].copy() for name in rec.dtype.names or () if not name.startswith("_")}
         elif kind == "binary_compressed":
             packed, size = struct.unpack_from("<II", body)
             data = lzf_decompress(body[8 : 8 + packed], size)
@@ -260,7 +261,7 @@ def events(files: list[Path], lo: int | None, hi: int | None) -> Iterator[Event]
         t = k * FILE_PERIOD_NS
         if (lo is not None and t < lo) or (hi is not None and t >= hi):
             continue
-        yield CloudMessage(t, FILES_TOPIC, lambda f=f, t=t: _decode_file(f, t))
+        yield CloudMessage(t, FILES_TOPIC, partial(_decode_file, f, t))
 
 
 def _decode_file(path: Path, stamp_ns: int) -> DecodedCloud:

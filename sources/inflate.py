@@ -107,7 +107,7 @@ def bound_rosbags() -> None:
 
     m2.DECOMPRESSORS.update({"lz4": inflate_lz4, "zstd": inflate_zstd})
     r1.decompressors.update({"bz2": inflate_bz2, "lz4": inflate_lz4})
-    r2.zstd = _BoundedZstd(r2.zstd)  # per-message compression of ROS 2 bags: `zstd.decompress(data)`
+    vars(r2)["zstd"] = _BoundedZstd(r2.zstd)  # per-message compression of ROS 2 bags: `zstd.decompress(data)`
     _bound_ros1_chunks(r1)
 
 

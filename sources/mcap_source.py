@@ -20,6 +20,7 @@ from typing import IO, Any, Final
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
+from mcap.decoder import DecoderFactory as McapDecoderFactory
 from mcap.exceptions import EndOfFile, McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
@@ -71,6 +72,7 @@ def _damage_errors() -> tuple[type[BaseException], ...]:
 
 
 DAMAGE_ERRORS: Final[tuple[type[BaseException], ...]] = _damage_errors()
+CHUNK_ERRORS: Final[tuple[type[BaseException], ...]] = (CRCValidationError, MemoryError, *DAMAGE_ERRORS)
 
 
 def damage_reason(exc: BaseException, where: int, size: int | None = None) -> str:
@@ -266,15 +268,22 @@ class _Decoders:
             raise InputError(f"topic {channel.topic} has no schema, its messages cannot be decoded")
         fn = self._cache.get(schema.id)
         if fn is None:
+            factory: McapDecoderFactory
             if schema.encoding == "ros2msg":
-                from mcap_ros2.decoder import DecoderFactory
+                from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
+
+                factory = Ros2Decoders()
             elif schema.encoding == "ros1msg":
-                from mcap_ros1.decoder import DecoderFactory  # type: ignore[no-redef]
+                from mcap_ros1.decoder import DecoderFactory as Ros1Decoders
+
+                factory = Ros1Decoders()
             elif schema.encoding == "protobuf":
-                from mcap_protobuf.decoder import DecoderFactory  # type: ignore[no-redef]
+                from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
+
+                factory = ProtobufDecoders()
             else:
                 raise InputError(f"topic {channel.topic}: unsupported schema encoding {schema.encoding!r}")
-            decoder = DecoderFactory().decoder_for(channel.message_encoding, schema)
+            decoder = factory.decoder_for(channel.message_encoding, schema)
             if decoder is None:
                 raise InputError(
                     f"topic {channel.topic}: no decoder for {channel.message_encoding!r} messages of {schema.name}"
@@ -311,7 +320,7 @@ def _chunk_records(chunk: Chunk, where: int) -> list[Any]:
         data = inflate(chunk.data, chunk.compression, chunk.uncompressed_size if chunk.compression else None)
         plain = dataclasses.replace(chunk, compression="", data=data)
         return breakup_chunk(plain, validate_crc=True)
-    except (CRCValidationError, MemoryError, *DAMAGE_ERRORS) as exc:
+    except CHUNK_ERRORS as exc:
         raise _BadChunk(where, chunk.message_start_time, exc) from None
 
 

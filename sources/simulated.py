@@ -35,7 +35,8 @@ if TYPE_CHECKING:
 
 SCHEME: Final = "sim"
 DEFAULT_FAMILY: Final = "disaster"
-_KEYS: Final = {
+# bool: 1/0, true/false, yes/no, on/off (_BOOLS); the others are read with their type
+_KEYS: Final[dict[str, type]] = {
     "seed": int,
     "sensor": str,
     "scans": int,
@@ -49,9 +50,9 @@ _KEYS: Final = {
     "turn": float,
     "sway": float,
     "palette": str,
-    "color": "bool",
+    "color": bool,
     "conditions": str,
-    "randomize": "bool",
+    "randomize": bool,
 }
 _BOOLS: Final = {
     "1": True,
@@ -128,7 +129,7 @@ def parse_sim_uri(uri: str) -> SimSpec:
         if key not in _KEYS:
             raise InputError(f"unknown simulator option {key!r} (known: {', '.join(_KEYS)})", uri)
         kind = _KEYS[key]
-        if kind == "bool":
+        if kind is bool:
             if vals[-1].lower() not in _BOOLS:
                 raise InputError(f"simulator option {key}={vals[-1]!r} is not 0 or 1", uri)
             values[key] = _BOOLS[vals[-1].lower()]
@@ -252,7 +253,7 @@ def resolve(spec: SimSpec) -> Choices:
     palette = str(rng.choice(PALETTES)) if spec.randomize else "natural"
     cond_kind = spec.conditions or ("random" if spec.randomize else "plain")
     conditions = Conditions.randomized(rng) if cond_kind == "random" else Conditions()
-    over = {
+    over: dict[str, Any] = {
         k: v
         for k, v in (
             ("mount_height_m", spec.height_m),

@@ -20,10 +20,9 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from aftershock.pipeline.pointcloud2 import (
-    POINTCLOUD2_MSGDEF,
-    POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
     pose_stamped_message,
+    register_cloud_and_pose,
     serialize_pointcloud2,
     serialize_pose_stamped,
 )
@@ -92,10 +91,7 @@ def write_log(
     with path.open("wb") as fh:
         w = McapWriter(fh, chunk_size=chunk_size, compression=compression)
         w.start(profile="ros2", library="aftershock-tests")
-        cs = w.register_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSGDEF.encode())
-        ps = w.register_schema("geometry_msgs/msg/PoseStamped", "ros2msg", POSE_STAMPED_MSGDEF.encode())
-        cc = w.register_channel(CLOUD_TOPIC, "cdr", cs)
-        pc = w.register_channel(POSE_TOPIC, "cdr", ps)
+        cc, pc = register_cloud_and_pose(w, CLOUD_TOPIC, POSE_TOPIC)
         for k, cols in enumerate(clouds):
             t = T0_NS + k * PERIOD_NS
             pose = pose_stamped_message(poses[k], t)

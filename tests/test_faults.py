@@ -1,8 +1,9 @@
 """Faults and hostile input (issue 14): nothing lost, nothing hangs, one clear line.
 
-Each numbered failure of the issue has a test here that reproduced it; the fault-injection set (a full disk through
-a small tmpfs, SIGINT/SIGTERM/SIGKILL mid-run, truncated and corrupted logs, hostile headers) runs with the default
-suite and on its own with `make test-faults`. Signals, exit codes and full disks are tried on real subprocesses.
+Each failure the issue listed has a test here that reproduced it, named by the behaviour it specifies; the
+fault-injection set (a full disk through a small tmpfs, SIGINT/SIGTERM/SIGKILL mid-run, truncated and corrupted
+logs, hostile headers) runs with the default suite and on its own with `make test-faults`. Signals, exit codes and
+full disks are tried on real subprocesses.
 """
 
 from __future__ import annotations
@@ -74,11 +75,11 @@ def sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-# ----------------------------------------------------------------------------------- 1, 10: a full disk
+# ----------------------------------------------------------------------------------- a full disk
 
 
 @needs_root
-def test_1_a_disk_too_full_for_a_recording_refuses_at_once_and_leaves_nothing(tmp_path: Path) -> None:
+def test_a_disk_too_full_for_a_recording_refuses_at_once_and_leaves_nothing(tmp_path: Path) -> None:
     log = write_log(tmp_path / "log.mcap", 6)
     with small_disk(tmp_path / "disk", "2m") as disk:
         done = cli_proc(["run", str(log), "--save", str(disk / "x.rrd"), *RG, "-q"], timeout=60)
@@ -88,7 +89,7 @@ def test_1_a_disk_too_full_for_a_recording_refuses_at_once_and_leaves_nothing(tm
 
 
 @needs_root
-def test_1_a_disk_filling_mid_run_stops_the_recording_readable_and_finishes_the_others(tmp_path: Path) -> None:
+def test_a_disk_filling_mid_run_stops_the_recording_readable_and_finishes_the_others(tmp_path: Path) -> None:
     """The disk of --save fills while the run goes on: the run stops (no hang, Ctrl-C never needed), the
     recording is valid up to there and the outputs on other disks hold every processed scan."""
     log = write_log(tmp_path / "log.mcap", 400, points=3000)
@@ -115,7 +116,7 @@ def test_1_a_disk_filling_mid_run_stops_the_recording_readable_and_finishes_the_
 
 
 @needs_root
-def test_1_a_disk_full_at_once_ends_the_run_in_seconds_with_what_was_written_readable(tmp_path: Path) -> None:
+def test_a_disk_full_at_once_ends_the_run_in_seconds_with_what_was_written_readable(tmp_path: Path) -> None:
     """The disk fills in one go (another program): Rerun's writer thread dies; the run still ends, one line."""
     log = write_log(tmp_path / "log.mcap", 400, points=3000)
     with small_disk(tmp_path / "disk", "64m") as disk:
@@ -137,7 +138,7 @@ def test_1_a_disk_full_at_once_ends_the_run_in_seconds_with_what_was_written_rea
 
 @needs_root
 @pytest.mark.parametrize("what", ["mcap-out", "export"])
-def test_10_a_full_disk_under_mcap_out_or_export_is_one_line(what: str, tmp_path: Path) -> None:
+def test_a_full_disk_under_mcap_out_or_export_is_one_line(what: str, tmp_path: Path) -> None:
     log = write_log(tmp_path / "log.mcap", 60)
     with small_disk(tmp_path / "disk", "2m" if what == "mcap-out" else "96k") as disk:
         out = disk / ("o.mcap" if what == "mcap-out" else "exp")
@@ -151,7 +152,7 @@ def test_10_a_full_disk_under_mcap_out_or_export_is_one_line(what: str, tmp_path
 
 
 @needs_root
-def test_1_simulate_and_refine_on_a_full_disk(tmp_path: Path, crack_dir: Path) -> None:
+def test_simulate_and_refine_on_a_full_disk_leave_no_half_file(tmp_path: Path, crack_dir: Path) -> None:
     with small_disk(tmp_path / "disk", "256k") as disk:
         done = cli_proc(["simulate", "--out", str(disk / "m.mcap"), "--scans", "20", "-q"], timeout=120)
         assert done.returncode == 2
@@ -164,11 +165,11 @@ def test_1_simulate_and_refine_on_a_full_disk(tmp_path: Path, crack_dir: Path) -
         assert not (disk / "r.ply").exists() and not list(disk.glob(".*.part"))  # no half file left
 
 
-# ----------------------------------------------------------------------------------- 2, 3: bad messages
+# ----------------------------------------------------------------------------------- bad messages
 
 
 @pytest.mark.parametrize("quaternion", [(0.0, 0.0, 0.0, 0.0), (math.nan, 0.0, 0.0, 1.0)])
-def test_2_a_bad_pose_is_skipped_with_a_warning(quaternion, tmp_path: Path, capsys) -> None:
+def test_a_bad_pose_is_skipped_with_a_warning(quaternion, tmp_path: Path, capsys) -> None:
     log = write_log(tmp_path / "log.mcap", 12, bad_poses={4: quaternion})
     code, out, err = cli(["run", str(log), *RG, "-q", "--json"], capsys)
     assert code == 0, err
@@ -177,7 +178,7 @@ def test_2_a_bad_pose_is_skipped_with_a_warning(quaternion, tmp_path: Path, caps
     assert f"logged at {T0_NS + 4 * PERIOD_NS} ns" in err and str(log) in err
 
 
-def test_3_one_undecodable_cloud_mid_log_is_skipped_and_the_rest_read(tmp_path: Path, capsys) -> None:
+def test_one_undecodable_cloud_mid_log_is_skipped_and_the_rest_read(tmp_path: Path, capsys) -> None:
     log = write_log(tmp_path / "log.mcap", 12, bad_clouds={5: MALFORMED["short data"]})
     out_dir = tmp_path / "exp"
     code, out, err = cli(["run", str(log), *RG, "-q", "--json", "--export", str(out_dir)], capsys)
@@ -193,30 +194,30 @@ def test_3_one_undecodable_cloud_mid_log_is_skipped_and_the_rest_read(tmp_path: 
     assert code == 0 and "skipped 1 messages" in out
 
 
-def test_3_a_log_where_no_cloud_decodes_is_one_line(tmp_path: Path, capsys) -> None:
+def test_a_log_where_no_cloud_decodes_is_one_line(tmp_path: Path, capsys) -> None:
     log = write_log(tmp_path / "log.mcap", 4, bad_clouds=dict.fromkeys(range(4), MALFORMED["point_step 0"]))
     code, _, err = cli(["run", str(log), *RG, "-q"], capsys)
     assert code == 2
     assert_one_line(err, log, "not one point cloud could be decoded")
 
 
-# ----------------------------------------------------------------------------------- 4: usage errors
+# ----------------------------------------------------------------------------------- usage errors
 
 
 @pytest.mark.parametrize(
     "args", [["run", "--frobnicate"], ["run", "--every", "two"], ["cracks"], ["nosuchcommand"], ["info"]]
 )
-def test_4_usage_errors_are_typers_message_and_exit_2(args: list[str]) -> None:
+def test_usage_errors_are_typers_message_and_exit_2(args: list[str]) -> None:
     done = cli_proc(args, timeout=60)
     assert done.returncode == 2, done.stderr
     assert "Traceback" not in done.stderr and "\x1b[" not in done.stderr
     assert "Usage:" in done.stderr and "Error:" in done.stderr
 
 
-# ----------------------------------------------------------------------------------- 5: info on files
+# ----------------------------------------------------------------------------------- info on files
 
 
-def test_5_info_on_point_cloud_files_and_folders(lidar_dir: Path, tmp_path: Path, capsys) -> None:
+def test_info_reads_a_point_cloud_file_and_a_folder_of_them(lidar_dir: Path, tmp_path: Path, capsys) -> None:
     code, out, err = cli(["info", str(lidar_dir / "room_scan1.pcd"), "--json"], capsys)
     assert code == 0, err
     assert json.loads(out)["point_clouds"][0]["points_max"] > 100_000
@@ -228,10 +229,10 @@ def test_5_info_on_point_cloud_files_and_folders(lidar_dir: Path, tmp_path: Path
     assert code == 0 and "2 scans" in out, err
 
 
-# ----------------------------------------------------------------------------------- 6: output == input
+# ----------------------------------------------------------------------------------- output == input
 
 
-def test_6_an_output_that_is_the_input_is_refused_even_with_force(tmp_path: Path, capsys) -> None:
+def test_an_output_that_is_the_input_is_refused_even_with_force(tmp_path: Path, capsys) -> None:
     log = write_log(tmp_path / "log.mcap", 4)
     before = sha(log)
     link = tmp_path / "link.mcap"
@@ -267,7 +268,7 @@ def test_6_an_output_that_is_the_input_is_refused_even_with_force(tmp_path: Path
     assert code == 0 and json.loads(out)["scans"] == 4, err
 
 
-# ----------------------------------------------------------------------------------- 7: signals
+# ----------------------------------------------------------------------------------- signals
 
 
 def _start_run(log: Path, tmp_path: Path) -> tuple[subprocess.Popen, Path]:
@@ -290,7 +291,7 @@ def long_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.parametrize(("sig", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_7_sigterm_stops_like_ctrl_c_with_every_output_finished(sig, code, long_log: Path, tmp_path: Path) -> None:
+def test_sigterm_stops_like_ctrl_c_with_every_output_finished(sig, code, long_log: Path, tmp_path: Path) -> None:
     proc, out = _start_run(long_log, tmp_path)
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
@@ -306,7 +307,7 @@ def test_7_sigterm_stops_like_ctrl_c_with_every_output_finished(sig, code, long_
     assert (tmp_path / "exp" / "map.ply").exists()
 
 
-def test_7_sigkill_loses_only_the_scan_in_flight(long_log: Path, tmp_path: Path) -> None:
+def test_sigkill_loses_only_the_scan_in_flight(long_log: Path, tmp_path: Path) -> None:
     """SIGKILL cannot be caught: the pose files are flushed with each scan, the MCAP reads up to the cut; both
     are left under their `.part` names (renamed only when a run ends), so nothing looks finished that is not."""
     proc, out = _start_run(long_log, tmp_path)
@@ -327,11 +328,11 @@ def test_7_sigkill_loses_only_the_scan_in_flight(long_log: Path, tmp_path: Path)
     assert "/world/scan/labels" in listing.stdout
 
 
-# ----------------------------------------------------------------------------------- 8: malformed PointCloud2
+# ----------------------------------------------------------------------------------- malformed PointCloud2
 
 
 @pytest.mark.parametrize("kind", [*MALFORMED, "truncated CDR", "data length 2**31"])
-def test_8_malformed_pointcloud2_info_one_line_run_skips(kind: str, tmp_path: Path, capsys) -> None:
+def test_a_malformed_pointcloud2_is_one_line_in_info_and_skipped_by_run(kind: str, tmp_path: Path, capsys) -> None:
     path = tmp_path / "bad.mcap"
     if kind == "data length 2**31":
         log = huge_data_length(path, 6, at=3)
@@ -356,7 +357,7 @@ def test_weak_duplicate_field_names_are_warned(tmp_path: Path, capsys) -> None:
     assert code == 0 and "'x' is declared more than once" in err
 
 
-# ----------------------------------------------------------------------------------- 9: NaN vertices
+# ----------------------------------------------------------------------------------- NaN vertices
 
 
 def _with_nan(cloud: LabelledCloud, path: Path, nan_rows: int = 1) -> Path:
@@ -375,7 +376,7 @@ def _slabs(n: int = 40_000) -> LabelledCloud:
     return LabelledCloud(np.vstack([floor, ceiling, wall, wall + np.array([0, 6, 0])]))
 
 
-def test_9_a_nan_vertex_is_dropped_with_a_note_in_drift_and_refine(tmp_path: Path, capsys) -> None:
+def test_a_nan_vertex_is_dropped_with_a_note_in_drift_and_refine(tmp_path: Path, capsys) -> None:
     ply = _with_nan(_slabs(), tmp_path / "nan.ply")
     code, out, err = cli(["drift", str(ply), "--json"], capsys)
     assert code == 0, err
@@ -386,7 +387,7 @@ def test_9_a_nan_vertex_is_dropped_with_a_note_in_drift_and_refine(tmp_path: Pat
     assert json.loads(out)["points"] == 4999 and "dropped 1 of 5000" in err
 
 
-def test_9_a_nan_vertex_in_cracks_is_dropped_and_the_mask_follows(crack_dir: Path, tmp_path: Path, capsys) -> None:
+def test_a_nan_vertex_in_cracks_is_dropped_and_the_mask_follows(crack_dir: Path, tmp_path: Path, capsys) -> None:
     from aftershock.pipeline.cloud_io import read_cloud
 
     slab = read_cloud(crack_dir / "slab2.ply")
@@ -396,7 +397,7 @@ def test_9_a_nan_vertex_in_cracks_is_dropped_and_the_mask_follows(crack_dir: Pat
     assert "dropped 3 of" in err and json.loads(out)["f1"] > 0.3
 
 
-def test_9_nothing_usable_left_is_one_line(tmp_path: Path, capsys) -> None:
+def test_a_cloud_with_nothing_usable_left_is_one_line(tmp_path: Path, capsys) -> None:
     all_nan = _with_nan(LabelledCloud(np.ones((100, 3))), tmp_path / "nan.ply", 100)
     same = write_cloud(tmp_path / "same.ply", LabelledCloud(np.ones((500, 3))))
     for args in (["drift", str(all_nan)], ["cracks", str(all_nan)], ["refine", str(all_nan)], ["drift", str(same)]):
@@ -405,10 +406,10 @@ def test_9_nothing_usable_left_is_one_line(tmp_path: Path, capsys) -> None:
         assert_one_line(err, args[1])
 
 
-# ----------------------------------------------------------------------------------- 11: size bombs
+# ----------------------------------------------------------------------------------- size bombs
 
 
-def test_11_a_pcd_claiming_gigabytes_is_refused_before_allocating(tmp_path: Path, capsys) -> None:
+def test_a_pcd_claiming_gigabytes_is_refused_before_allocating(tmp_path: Path, capsys) -> None:
     import tracemalloc
 
     bomb = pcd_size_bomb(tmp_path / "bomb.pcd")
@@ -424,11 +425,11 @@ def test_11_a_pcd_claiming_gigabytes_is_refused_before_allocating(tmp_path: Path
     assert_one_line(err, bomb)
 
 
-# ----------------------------------------------------------------------------------- 12: chunk CRCs
+# ----------------------------------------------------------------------------------- chunk CRCs
 
 
 @pytest.mark.parametrize("indexed", [True, False])
-def test_12_a_corrupted_chunk_is_skipped_and_the_rest_read(indexed: bool, tmp_path: Path, capsys) -> None:
+def test_a_corrupted_chunk_is_skipped_and_the_rest_read(indexed: bool, tmp_path: Path, capsys) -> None:
     log = write_log(tmp_path / "log.mcap", 12, chunk_size=50_000, compression=CompressionType.NONE)
     assert len(chunk_offsets(log)) >= 6
     bad = corrupt_chunk(log, tmp_path / "bad.mcap", 2)
@@ -441,7 +442,7 @@ def test_12_a_corrupted_chunk_is_skipped_and_the_rest_read(indexed: bool, tmp_pa
     assert "corrupt" in err and "CRC" in err
 
 
-def test_12_corrupt_compressed_chunk_is_skipped_too(tmp_path: Path, capsys) -> None:
+def test_a_corrupted_compressed_chunk_is_skipped_too(tmp_path: Path, capsys) -> None:
     log = write_log(tmp_path / "log.mcap", 12, chunk_size=50_000)
     bad = corrupt_chunk(log, tmp_path / "bad.mcap", 3)
     code, out, err = cli(["run", str(bad), *RG, "-q", "--json"], capsys)
@@ -456,10 +457,10 @@ def test_weak_cracks_resolution_must_be_positive(crack_dir: Path, capsys) -> Non
         assert_one_line(err, "--resolution")
 
 
-# ----------------------------------------------------------------------------------- 14: smaller ones
+# ----------------------------------------------------------------------------------- unreadable and odd inputs
 
 
-def test_14_unreadable_folder_and_file_inside_one(lidar_dir: Path, tmp_path: Path) -> None:
+def test_an_unreadable_folder_or_file_inside_one_is_one_line_naming_it(lidar_dir: Path, tmp_path: Path) -> None:
     """Root reads every file: the command then runs without the capabilities that bypass file permissions."""
     base = tmp_path / "base"
     base.mkdir()
@@ -489,7 +490,7 @@ def test_14_unreadable_folder_and_file_inside_one(lidar_dir: Path, tmp_path: Pat
         assert_one_line(done.stderr, named, "ermission denied")
 
 
-def test_14_smaller_ones(lidar_dir: Path, tmp_path: Path, capsys) -> None:
+def test_a_zero_count_pcd_a_folder_as_save_and_a_device_are_one_line(lidar_dir: Path, tmp_path: Path, capsys) -> None:
     pcd = tmp_path / "count0.pcd"
     pcd.write_text(
         "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 0\nWIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA ascii\n"
@@ -551,7 +552,7 @@ def test_weak_run_json_says_when_the_log_was_damaged(tmp_path: Path, capsys) -> 
         assert key in result
 
 
-def test_1_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
+def test_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """When Rerun's file writer dies without saying so, every flush times out: the sink gives up once the file
@@ -578,7 +579,7 @@ def test_1_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
     sink.rec.disconnect()
 
 
-def test_3_a_damaged_file_among_a_folders_scans_is_skipped(lidar_dir: Path, tmp_path: Path, capsys) -> None:
+def test_a_damaged_file_among_a_folders_scans_is_skipped(lidar_dir: Path, tmp_path: Path, capsys) -> None:
     folder = tmp_path / "scans"
     folder.mkdir()
     for k, name in enumerate(("room_scan1.pcd", "room_scan2.pcd", "room_scan1.pcd")):

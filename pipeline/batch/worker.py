@@ -175,8 +175,15 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
         with bound, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                options = {"damage": task.damage, "quiet": True, "notice": notes.append, "extra_sinks": [progress]}
-                result, extra, info = run_source(task.source, cfg, outputs, **options)
+                result, extra, info = run_source(
+                    task.source,
+                    cfg,
+                    outputs,
+                    damage=task.damage,
+                    quiet=True,
+                    notice=notes.append,
+                    extra_sinks=[progress],
+                )
             finally:  # a log cut off part-way warns, then may still fail: keep the warning either way
                 notes.extend(str(w.message) for w in caught)
         report = info.report

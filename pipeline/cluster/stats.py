@@ -52,12 +52,12 @@ class InstanceStats:
     def __init__(self, geometry: Geometry, same_class: bool = False) -> None:
         self.geometry = geometry
         self.same_class = same_class
-        self.size = np.zeros(0, np.int64)  # voxels per instance id
+        self.size: np.ndarray = np.zeros(0, np.int64)  # voxels per instance id
         self.last_grown = np.zeros(0, np.int64)  # scan in which each instance last gained a voxel
-        self.sums = np.zeros((0, 0), np.float64)  # per instance id: sum of its voxels' embeddings
-        self.psum = np.zeros((0, 3), np.float64)  # ... of their positions
-        self.pp = np.zeros((0, 6), np.float64)  # ... of xx, xy, xz, yy, yz, zz
-        self.votes = np.zeros((0, NUM_CLASSES), np.int64)  # ... of the classes the labeller first gave them
+        self.sums: np.ndarray = np.zeros((0, 0), np.float64)  # per instance id: sum of its voxels' embeddings
+        self.psum: np.ndarray = np.zeros((0, 3), np.float64)  # ... of their positions
+        self.pp: np.ndarray = np.zeros((0, 6), np.float64)  # ... of xx, xy, xz, yy, yz, zz
+        self.votes: np.ndarray = np.zeros((0, NUM_CLASSES), np.int64)  # ... of the classes the labeller first gave them
         self.plane_known = np.zeros(0, bool)  # per instance id: the cached plane below is current
         self.plane_planar = np.zeros(0, bool)
         self.plane_normal = np.zeros((0, 3))

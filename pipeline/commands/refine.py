@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import note
 
 
@@ -30,8 +31,6 @@ def refine(
 ) -> None:
     """Re-segment a cloud into objects by learnt region growing."""
     if seed is not None and not 0 <= seed <= 2**32 - 1:
-        from aftershock.pipeline.errors import InputError
-
         raise InputError(f"--seed {seed}: a seed is between 0 and {2**32 - 1} (numpy and torch take 32-bit seeds)")
     from aftershock.pipeline.cloud_io import check_output, finite_points, read_cloud, write_cloud
     from aftershock.pipeline.config import load_config
@@ -73,9 +72,9 @@ def refine(
         methods["lrgnet"]["seconds"] = report["seconds"]
         if baselines is None or baselines:
             vc = voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
-            for name in available():
-                b = baseline_cloud(cloud, name, cfg, vc)
-                methods[name.value] = {**scores(cloud.instance_ids, b.instance_ids), "seconds": b.seconds}
+            for baseline in available():
+                b = baseline_cloud(cloud, baseline, cfg, vc)
+                methods[baseline.value] = {**scores(cloud.instance_ids, b.instance_ids), "seconds": b.seconds}
         report["methods"] = methods
     if out is not None:
         refined = cloud.select(np.arange(len(cloud)))

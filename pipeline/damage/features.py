@@ -75,7 +75,8 @@ def _fpfh(cloud: LabelledCloud, cfg: CrackConfig) -> np.ndarray:
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.normal_cell_m, max_nn=30))
-    fpfh = o3d.pipelines.registration.compute_fpfh_feature(
+    # open3d's stub leaves out the default of `indices` (every point)
+    fpfh = o3d.pipelines.registration.compute_fpfh_feature(  # type: ignore[call-arg]
         pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.fpfh_radius_m, max_nn=100)
     )
     return np.asarray(fpfh.data, np.float32).T.copy()

@@ -33,7 +33,7 @@ _COVER: Final = 0.5  # a pixel is on the face when its point cover, smoothed ove
 
 @dataclass(frozen=True, slots=True)
 class RegionSettings:
-    """What the region detector looks for (chosen in tests/bench_cracks_region.py, see its docstring)."""
+    """What the region detector looks for (chosen in tests/bench/bench_cracks_region.py, see its docstring)."""
 
     channels: tuple[str, ...]  # of CHANNELS
     scales_m: tuple[float, ...]  # darkness scales: a patch of this size against a surround _SURROUND times wider

@@ -22,7 +22,7 @@ from aftershock.models.mcpnet import (
     context_features,
     default_weights,
     floor_height,
-    load_model,
+    load_mcpnet,
     point_features,
     point_inputs_of_rows,
 )
@@ -65,14 +65,14 @@ class MCPNetLabeller:
     ) -> None:
         self.name = kind
         path = Path(weights or default_weights(kind))
-        self.model, self.net, self.figures = load_model(path, kind=kind)
+        self.model, self.net, self.figures = load_mcpnet(path, kind=kind)
         # Logs without colour get a network of their own (#12): trained on randomised buildings, colour dropped
         # per mission. A weights file named alone serves both.
         mono = weights_no_color or (default_weights(NO_COLOR) if kind == NAME and weights is None else None)
         self.mono_weights = Path(mono) if mono else path
         self.mono_model, self.mono_net = (self.model, self.net)
         if mono:
-            self.mono_model, self.mono_net, _ = load_model(mono, kind=kind)
+            self.mono_model, self.mono_net, _ = load_mcpnet(mono, kind=kind)
             if self.mono_net.embed_dim != self.net.embed_dim:
                 raise InputError(
                     f"embeds in {self.mono_net.embed_dim} dimensions, {path.name} in {self.net.embed_dim}", mono

@@ -21,7 +21,7 @@ from aftershock.pipeline.config import LRGNET_MODE_DEFAULTS, LRGNetConfig
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.geometry import attach_small_segments
 from aftershock.pipeline.refine.features import NUM_FEATURES, PLANE_FEATURES, VoxelCloud, voxelise
-from aftershock.pipeline.refine.grow import Grower, Search
+from aftershock.pipeline.refine.grow import Grower, ModeSettings, Search
 from aftershock.pipeline.refine.merge import merge_coplanar, split_creases
 from aftershock.pipeline.types import LabelledCloud
 
@@ -99,10 +99,11 @@ def refine_cloud(
     finally:
         torch.set_num_threads(threads)
     labels = seg.labels
-    if cfg.crease_angle_deg > 0:
-        labels = split_creases(vc, labels, cfg.crease_angle_deg, cfg.crease_min_voxels)
-    if cfg.merge_angle_deg > 0:
-        labels = merge_coplanar(vc, labels, cfg.merge_angle_deg, cfg.merge_offset_m)
+    mode = ModeSettings.of(cfg, vc.color)
+    if mode.crease_angle_deg > 0:
+        labels = split_creases(vc, labels, mode.crease_angle_deg, mode.crease_min_voxels)
+    if mode.merge_angle_deg > 0:
+        labels = merge_coplanar(vc, labels, mode.merge_angle_deg, mode.merge_offset_m)
     labels = attach_small_segments(vc.points, labels, cfg.min_segment_points)
     steps = None
     if seg.history is not None:
@@ -125,7 +126,7 @@ def baseline_cloud(cloud: LabelledCloud, name: str, cfg: LRGNetConfig, vc: Voxel
 
     t0 = time.perf_counter()
     vc = vc or voxelise(cloud, cfg.voxel_size_m, cfg.delta_m)
-    labels = run_baseline(name, cloud, vc, cfg)  # type: ignore[arg-type]
+    labels = run_baseline(name, cloud, vc, cfg)
     return RefineResult(
         instance_ids=labels[vc.voxel_of_point].astype(np.uint32),
         steps=None,

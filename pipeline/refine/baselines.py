@@ -78,7 +78,8 @@ def fpfh_clustering(cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(vc.points))
     pcd.normals = o3d.utility.Vector3dVector(vc.features[:, NORMAL].astype(np.float64))
     search = o3d.geometry.KDTreeSearchParamHybrid(radius=FPFH_RADIUS_VOXELS * cfg.voxel_size_m, max_nn=FPFH_MAX_NN)
-    fpfh = np.asarray(o3d.pipelines.registration.compute_fpfh_feature(pcd, search).data).T  # (M, 33)
+    # (M, 33); open3d's stub leaves out the default of `indices` (every point)
+    fpfh = np.asarray(o3d.pipelines.registration.compute_fpfh_feature(pcd, search).data).T  # type: ignore[call-arg]
     return similarity_components(vc, fpfh, cfg.fpfh_similarity)
 
 
@@ -110,7 +111,7 @@ def available() -> list[Baseline]:
     return list(Baseline) if hasattr(MCPNetLabeller, "embed_cloud") else [b for b in Baseline if b != Baseline.MCPNET]
 
 
-def run_baseline(name: Baseline, cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:
+def run_baseline(name: Baseline | str, cloud: LabelledCloud, vc: VoxelCloud, cfg: LRGNetConfig) -> np.ndarray:
     """Segment ids per voxel, small segments absorbed by their nearest large neighbour."""
     labels = BASELINES[Baseline(name)](cloud, vc, cfg)
     return attach_small_segments(vc.points, labels, cfg.min_segment_points)

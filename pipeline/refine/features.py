@@ -134,8 +134,8 @@ def voxelise(cloud: LabelledCloud, voxel_m: float, delta_m: float | None = None)
     reach = max(1, round((delta_m if delta_m is not None else voxel_m) / voxel_m))
     adjacency = touching if reach == 1 else _neighbour_table(uniq, neighbour_offsets(reach))
     if cloud.colors is not None:
-        rgb = np.stack([np.bincount(inverse, cloud.colors[:, i].astype(np.float64), m) for i in range(3)], axis=1)
-        rgb = rgb / count[:, None] / 255.0
+        summed = [np.bincount(inverse, cloud.colors[:, i].astype(np.float64), m) for i in range(3)]
+        rgb = np.stack(summed, axis=1) / count[:, None] / 255.0
     else:
         rgb = np.zeros((m, 3))
     lo, hi = centroid.min(axis=0), centroid.max(axis=0)

@@ -9,7 +9,7 @@ comes from one seeded generator.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import Final
 
@@ -59,6 +59,23 @@ class Growth:
     history: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
 
+@dataclass(frozen=True, slots=True)
+class ModeSettings:
+    """LRGNet's settings that depend on whether the cloud has colour (LRGNET_MODE_DEFAULTS), each resolved."""
+
+    add_threshold: float
+    merge_angle_deg: float
+    merge_offset_m: float
+    crease_angle_deg: float
+    crease_min_voxels: int
+    flat_gate_deg: float
+
+    @classmethod
+    def of(cls, cfg: LRGNetConfig, color: bool) -> ModeSettings:
+        resolved = cfg.for_color(color)
+        return cls(**{f.name: getattr(resolved, f.name) for f in fields(cls)})
+
+
 @dataclass(slots=True)
 class Segmentation:
     labels: np.ndarray  # (M,) int64 segment per voxel, 1.. in growth order
@@ -73,7 +90,8 @@ class Grower:
         self.vc = vc
         self.net = net
         self.plane = reads_plane(net.in_features)  # weights of layout 3 read the per-step plane features too
-        self.cfg = cfg.for_color(vc.color)  # the add threshold depends on whether the cloud has colour
+        self.cfg = cfg.for_color(vc.color)
+        self.mode = ModeSettings.of(cfg, vc.color)  # the add threshold and the gate depend on the cloud's colour
         self.rng = np.random.default_rng(cfg.seed)
         self.labelled = np.zeros(len(vc), bool)
         self._touched = np.zeros(len(vc), bool)
@@ -124,8 +142,8 @@ class Grower:
             rm = self.rng.random(len(p_rm)) < p_rm
             add = self.rng.random(len(p_add)) < p_add
         else:
-            rm, add = p_rm > self.cfg.remove_threshold, p_add > self.cfg.add_threshold
-        if self.cfg.flat_gate_deg:
+            rm, add = p_rm > self.cfg.remove_threshold, p_add > self.mode.add_threshold
+        if self.mode.flat_gate_deg:
             add &= self.within_plane(region, candidates)
         loglik = state.loglik + float(
             np.log(np.where(rm, p_rm, 1 - p_rm) + _EPS).sum() + np.log(np.where(add, p_add, 1 - p_add) + _EPS).sum()
@@ -151,7 +169,7 @@ class Grower:
         if values[0] >= MAX_FLATNESS * max(float(values.sum()), 1e-12):
             return ok
         cos = np.abs(self.vc.features[candidates, NORMAL] @ vectors[:, 0].astype(np.float32))
-        return cos >= np.cos(np.radians(self.cfg.flat_gate_deg))
+        return cos >= np.cos(np.radians(self.mode.flat_gate_deg))
 
     # --- one region -------------------------------------------------------------------------------------
     def score(self, g: Growth) -> float:

@@ -692,7 +692,8 @@ def assess_mission(m: MissionData, full: Config) -> tuple[dict[str, Any], list[d
     base["folder"] = str(m.folder) if m.folder is not None else None
     if m.status == "failed":
         return base | {"storeys": [], "checklist": [], "findings": [], "posting": None}, []
-    src = m.summary.get("source") if isinstance(m.summary.get("source"), dict) else {}
+    source = m.summary.get("source")
+    src = source if isinstance(source, dict) else {}
     poses = m.poses
     measured = measure_levels(m, full)
     levels = storeys(m, measured, cfg)

@@ -280,6 +280,7 @@ def _damaged_column(
             story=k,
             span=True,
         )
+    tilt_x, tilt_y = rng.uniform(-0.08, 0.08, 2)
     b.add_box(
         (x + off[0], y + off[1], (a + c) / 2),
         (core, core, c - a),
@@ -289,7 +290,7 @@ def _damaged_column(
         color=col,
         story=k,
         span=True,
-        rotation=rotation_xyz(*rng.uniform(-0.08, 0.08, 2), 0),
+        rotation=rotation_xyz(tilt_x, tilt_y, 0),
     )
     for sx in (-1, 1):
         for sy in (-1, 1):

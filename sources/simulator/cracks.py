@@ -115,7 +115,7 @@ _MARK_HUES: Final = ((178, 52, 44), (40, 84, 170), (214, 180, 30), (60, 140, 70)
 
 def _site_marks(
     pts: np.ndarray, faces: list[_Face], face_of: np.ndarray, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Per point: offset along the normal (m), brightness factor, and paint (colour (N, 3), weight (N,)) of the
     site's marks (module docstring). Each face gets its own draw; one joint and one step per element at most."""
     n = len(pts)
@@ -156,10 +156,10 @@ def _site_marks(
             paint[on[on_paint]], weight[on[on_paint]] = hue, rng.uniform(0.5, 0.9)
         if rng.random() < 0.5:  # a scribbled line in paint or marker, wandering, 3-8 mm wide
             c0 = np.array([rng.uniform(0.2, 0.8) * u.max(), rng.uniform(0.2, 0.8) * v.max()])
-            t = np.linspace(0, 1, 40)[:, None]
+            along = np.linspace(0, 1, 40)[:, None]
             a = rng.uniform(0, np.pi)
-            line = c0 + (t - 0.5) * rng.uniform(0.1, 0.4) * np.array([np.cos(a), np.sin(a)])
-            line += 0.02 * np.sin(t * rng.uniform(5, 15)) * np.array([-np.sin(a), np.cos(a)])
+            line = c0 + (along - 0.5) * rng.uniform(0.1, 0.4) * np.array([np.cos(a), np.sin(a)])
+            line += 0.02 * np.sin(along * rng.uniform(5, 15)) * np.array([-np.sin(a), np.cos(a)])
             from scipy.spatial import cKDTree
 
             dist, _ = cKDTree(line).query(np.c_[u, v], k=1)
@@ -171,7 +171,7 @@ def _site_marks(
             r = rng.uniform(0.03, 0.12)
             patch = (np.abs(u - c0[0]) < r) & (np.abs(v - c0[1]) < r * rng.uniform(0.5, 2))
             paint[on[patch]], weight[on[patch]] = hue, rng.uniform(0.5, 0.9)
-    return offset, bright, (paint, weight)  # type: ignore[return-value]
+    return offset, bright, (paint, weight)
 
 
 def cracked_element(

@@ -114,7 +114,8 @@ def debris_pile(
     for _ in range(int(np.clip(radius * 3, 2, 6))):
         r, a = radius * rng.uniform(0, 0.45), rng.uniform(0, 2 * np.pi)
         size = (radius * rng.uniform(0.5, 1.0), radius * rng.uniform(0.4, 0.8), rng.uniform(0.12, 0.3))
-        rot = rotation_xyz(*rng.uniform(-0.5, 0.5, 2), rng.uniform(-np.pi, np.pi))
+        rx, ry = rng.uniform(-0.5, 0.5, 2)
+        rot = rotation_xyz(rx, ry, rng.uniform(-np.pi, np.pi))
         col = colors[int(rng.integers(len(colors)))]
         builder.add_box(
             (center[0] + r * np.cos(a), center[1] + r * np.sin(a), floor_z + height * rng.uniform(0.15, 0.45)),
@@ -147,7 +148,8 @@ def debris_pile(
             jitter_color=0.15,
         )
     for _ in range(int(rng.integers(0, 4))):  # bent rebar sticking out
-        rot = rotation_xyz(*rng.uniform(-1.2, 1.2, 2), rng.uniform(-np.pi, np.pi))
+        rx, ry = rng.uniform(-1.2, 1.2, 2)
+        rot = rotation_xyz(rx, ry, rng.uniform(-np.pi, np.pi))
         r = radius * rng.uniform(0, 0.6)
         a = rng.uniform(0, 2 * np.pi)
         builder.add_box(

@@ -152,8 +152,8 @@ def clutter(rng: np.random.Generator) -> Piece:
             Part((0, 0, 0.3 + h / 2), (r * 1.6, r * 1.6, h), FABRIC, (50, 120, 50)),
         ]
     else:  # stack of papers or files
-        s = (rng.uniform(0.2, 0.35), rng.uniform(0.25, 0.35), rng.uniform(0.03, 0.15))
-        parts = [Part((0, 0, s[2] / 2), s, FABRIC, (235, 235, 225))]
+        stack = (rng.uniform(0.2, 0.35), rng.uniform(0.25, 0.35), rng.uniform(0.03, 0.15))
+        parts = [Part((0, 0, stack[2] / 2), stack, FABRIC, (235, 235, 225))]
     xs = [abs(p.center[0]) + p.size[0] / 2 for p in parts]
     ys = [abs(p.center[1]) + p.size[1] / 2 for p in parts]
     zs = [p.center[2] + p.size[2] / 2 for p in parts]

@@ -25,10 +25,9 @@ from mcap.writer import CompressionType, Writer
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.outputs import StreamedOutput, check_output
 from aftershock.pipeline.pointcloud2 import (
-    POINTCLOUD2_MSGDEF,
-    POSE_STAMPED_MSGDEF,
     encode_pointcloud2,
     pose_stamped_message,
+    register_cloud_and_pose,
     serialize_pointcloud2,
     serialize_pose_stamped,
 )
@@ -48,6 +47,7 @@ def pack_rgb(colors: np.ndarray) -> np.ndarray:
 
 def scan_columns(scan: Scan) -> dict[str, np.ndarray]:
     """The PointCloud2 columns of a simulated scan, in the documented field order."""
+    assert scan.class_ids is not None and scan.instance_ids is not None, "a simulated scan carries its truth"
     n = len(scan)
     cols = {
         "x": scan.points[:, 0].astype(np.float32),
@@ -77,6 +77,7 @@ class MissionStats:
     def add(self, scan: Scan) -> None:
         self.scans += 1
         self.points += len(scan)
+        assert scan.class_ids is not None, "a simulated scan carries its truth"
         ids, counts = np.unique(scan.class_ids, return_counts=True)
         for i, c in zip(ids.tolist(), counts.tolist(), strict=True):
             self.class_histogram[i] = self.class_histogram.get(i, 0) + c
@@ -150,7 +151,7 @@ def write_mission(
     scans: Iterable[Scan],
     *,
     truth: SceneTruth | None = None,
-    metadata: dict[str, str] | None = None,
+    metadata: dict[str, object] | None = None,  # written as strings
     force: bool = False,
 ) -> MissionStats:
     """Write scans (with ground truth) to an MCAP file; returns what was written."""
@@ -164,10 +165,7 @@ def write_mission(
     try:
         w = Writer(f, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
         w.start(profile="ros2", library="aftershock-simulator")
-        cloud_schema = w.register_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_MSGDEF.encode())
-        pose_schema = w.register_schema("geometry_msgs/msg/PoseStamped", "ros2msg", POSE_STAMPED_MSGDEF.encode())
-        points_ch = w.register_channel(POINTS_TOPIC, "cdr", cloud_schema)
-        pose_ch = w.register_channel(POSE_TOPIC, "cdr", pose_schema)
+        points_ch, pose_ch = register_cloud_and_pose(w, POINTS_TOPIC, POSE_TOPIC)
         for seq, scan in enumerate(scans):
             if not scan.has_ground_truth or scan.gt_pose is None:
                 raise ValueError("simulated scans carry class ids, instance ids and a true pose")

@@ -221,7 +221,8 @@ def plan_tour(
     x0 = corridor.x0 if end == 0 else corridor.x1 - 3.0
     start = grid.best_cell_in(x0, corridor.y0, x0 + 3.0, corridor.y1)
     if start is None:
-        start = tuple(int(v) for v in np.argwhere(grid.free)[0])
+        i, j = np.argwhere(grid.free)[0]
+        start = (int(i), int(j))
     goals = [c for r in rooms for c in _room_goals(grid, r)]
     graph = _grid_graph(grid)
     ny = grid.shape[1]

@@ -1,5 +1,5 @@
 """Simulator figures: scans per second of each sensor profile (one core), points per scan, the class
-histogram of a mission, and the time of a static scan. Run with `pytest -m slow -s tests/bench_simulator.py`."""
+histogram of a mission, and the time of a static scan. Run with `pytest -m slow -s tests/bench/bench_simulator.py`."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ import torch
 from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES
 from aftershock.sources.simulator import PROFILES, Mission, build_scene, get_profile
 
-pytestmark = pytest.mark.slow
 SCANS = 60
 
 

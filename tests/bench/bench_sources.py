@@ -8,14 +8,11 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from aftershock import sources
-
-pytestmark = pytest.mark.slow
 
 LOGS = ("velodyne_vlp16_indoor.mcap", "ouster_os1_128_outdoor.mcap", "ouster_os1_64_ros1.mcap", "room_scan*.pcd")
 REPEATS = 5

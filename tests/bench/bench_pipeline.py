@@ -18,7 +18,6 @@ figures (the median over the rounds) are printed with the load average beside th
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import statistics
@@ -30,13 +29,13 @@ from pathlib import Path
 from typing import Any, Final
 
 import pytest
+from common import CHILD_ENV, DOCS, REPO, run_child
 from rerun.chunk import RrdReader
 
 from aftershock.pipeline.stream import STAGES
 
-REPO: Final = Path(__file__).resolve().parents[1]
 SCREENSHOT_TOOL: Final = REPO.parent / "shared" / "tools" / "rrd_screenshot.py"
-PICTURE: Final = REPO / "docs" / "long_mission.png"
+PICTURE: Final = DOCS / "long_mission.png"
 SCANS: Final = 300
 ROUNDS: Final = 2  # each run this many times, alternating (the machine is shared: A/B in one run, medians)
 OVERLAP: Final = "stream.overlap=true"
@@ -50,7 +49,7 @@ MEMORY_LIMIT_MB: Final = 1024.0
 # recording on a busy 2-core machine (about 2.5 min at load 7-8 once compacted); the picture is taken after this long.
 SCREENSHOT_WAIT_S: Final = 300
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
+pytestmark = pytest.mark.timeout(3600)
 
 # The stage timers of the stream read process CPU time in these children (see the module docstring).
 _CPU_TIMERS: Final = textwrap.dedent(
@@ -130,24 +129,12 @@ _WHOLE_STREAM: Final = _CPU_TIMERS + textwrap.dedent(
 )
 
 
-def _child(script: str, *args: str | Path) -> tuple[dict[str, Any], float]:
-    """Run a child Python process; its JSON line and its wall time from start to exit."""
-    env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
-    t0 = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, "-c", script, *map(str, args)], capture_output=True, text=True, env=env, timeout=3600
-    )
-    wall = time.perf_counter() - t0
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1]), wall
-
-
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("bench") / "vlp16_300.mcap"
     cmd = [sys.executable, "-m", "aftershock.pipeline", "simulate", "--out", str(out), "--scans", str(SCANS), "--quiet"]
     cmd += [f"--{k}={v}" for k, v in MISSION.items()]
-    subprocess.run(cmd, check=True, env=dict(os.environ, CI="true", RERUN_ANALYTICS="0"))
+    subprocess.run(cmd, check=True, env=dict(os.environ, **CHILD_ENV))
     return out
 
 
@@ -167,7 +154,7 @@ def test_whole_stream_against_kiss_icp_alone(mission: Path, tmp_path: Path) -> N
     loads = [os.getloadavg()[0]]
     for _ in range(ROUNDS):
         for name, (script, args) in runs.items():
-            got[name], wall = _child(script, mission, *args)
+            got[name], wall = run_child(script, mission, *args)
             walls[name].append(wall)
             loads.append(os.getloadavg()[0])
     wall = {name: statistics.median(w) for name, w in walls.items()}
@@ -219,7 +206,7 @@ def test_whole_stream_against_kiss_icp_alone(mission: Path, tmp_path: Path) -> N
 def test_long_mission_memory_size_and_picture(tmp_path: Path) -> None:
     uri = f"sim://{MISSION['scene']}?seed={MISSION['seed'] + 1}&sensor={MISSION['sensor']}&scans={LONG_SCANS}"
     rrd = tmp_path / "long.rrd"
-    got, wall = _child(_WHOLE_STREAM, uri, rrd)
+    got, wall = run_child(_WHOLE_STREAM, uri, rrd)
     size_mb = rrd.stat().st_size / 1e6
     reader = RrdReader(rrd)
     chunks = sum(1 for _ in reader.stream(store=reader.recordings()[0]))
@@ -242,7 +229,7 @@ def test_long_mission_memory_size_and_picture(tmp_path: Path) -> None:
         print(f"no picture: needs Debian's chromium, playwright (pip install -e '.[screenshot]') and {SCREENSHOT_TOOL}")
         return
     t0 = time.perf_counter()
-    env = dict(os.environ, CI="true", RERUN_ANALYTICS="0")
+    env = dict(os.environ, **CHILD_ENV)
     cmd = [sys.executable, str(SCREENSHOT_TOOL), str(rrd), str(PICTURE), "--wait", str(SCREENSHOT_WAIT_S)]
     done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=SCREENSHOT_WAIT_S + 600)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -21,12 +21,13 @@ from pathlib import Path
 from typing import Final
 
 import pytest
+from common import CHILD_ENV
 
 MISSIONS: Final = 8
 SCANS: Final = 300
 TARGET_RATIO: Final = 1.7
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
+pytestmark = pytest.mark.timeout(7200)
 
 
 def _run(out: Path, workers: int) -> dict:
@@ -35,7 +36,7 @@ def _run(out: Path, workers: int) -> dict:
     cmd += ["--workers", str(workers), "--json", "--quiet"]
     load_before = os.getloadavg()
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, CI="true", RERUN_ANALYTICS="0"))
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, **CHILD_ENV))
     wall = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)

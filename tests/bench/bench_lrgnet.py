@@ -30,7 +30,7 @@ from aftershock.pipeline.refine.baselines import available
 from aftershock.pipeline.refine.features import voxelise
 from aftershock.pipeline.types import LabelledCloud
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
+pytestmark = pytest.mark.timeout(7200)
 
 ROOMS_PER_GENERATOR: Final = 6
 SEARCH_ROOMS: Final = 1  # rooms per generator for the (~10x slower) local searches

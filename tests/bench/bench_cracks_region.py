@@ -27,7 +27,17 @@ from typing import Any, Final
 
 import numpy as np
 import pytest
-from bench_cracks_ridge import PUBLISHED, PUBLISHED_WIDTH, _evaluated, _f1, _row, _sim_spacing
+from cracks_common import (
+    PUBLISHED,
+    PUBLISHED_WIDTH,
+    crack_row,
+    evaluated_cloud,
+    f1_score,
+    far_share,
+    print_simulated_f1,
+    print_speed_against_old_default,
+    sim_spacing,
+)
 
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import CrackConfig
@@ -35,7 +45,7 @@ from aftershock.pipeline.damage.region import element_faces, masks_of, settings_
 from aftershock.pipeline.damage.report import CrackResult, find_cracks
 from aftershock.pipeline.types import LabelledCloud
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
+pytestmark = pytest.mark.timeout(3600)
 
 REAL: Final = ("column1", "column2", "slab2", "column4")
 _CHANNEL_SETS: Final = (
@@ -86,8 +96,8 @@ def _calibrate() -> dict[str, float | None]:
 
     worst = {name: np.zeros(len(HIGH_GRID)) for name in CANDIDATES}
     for kind, seed in CALIBRATION:
-        cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind), intact=True, marks=True)
-        part, _, spacing = _evaluated(cloud, mask)
+        cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), intact=True, marks=True)
+        part, _, spacing = evaluated_cloud(cloud, mask)
         cache: dict[tuple[float, ...], Any] = {}
         for name in CANDIDATES:
             worst[name] = np.maximum(worst[name], [m.mean() for m in _masks(part, spacing, cache, name, HIGH_GRID)])
@@ -99,10 +109,8 @@ def _calibrate() -> dict[str, float | None]:
 
 
 def _far(r: CrackResult) -> float:
-    from bench_cracks_ridge import _far_share
-
     assert r.truth is not None
-    return _far_share(r.cloud.points, r.truth, r.mask)
+    return far_share(r.cloud.points, r.truth, r.mask)
 
 
 def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
@@ -116,12 +124,12 @@ def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarra
         print(f"  {name:40s} region_high {h if h is not None else 'none on the grid'}")
     usable = [n for n, h in highs.items() if h is not None]
     assert usable, "no candidate meets the intact calibration"
-    evaluated = {n: _evaluated(c, m) for n, (c, m) in real.items()}
+    evaluated = {n: evaluated_cloud(c, m) for n, (c, m) in real.items()}
     f1: dict[str, dict[str, float]] = {n: {} for n in usable}
     for el, (part, truth, spacing) in evaluated.items():
         cache: dict[tuple[float, ...], Any] = {}
         for name in usable:
-            f1[name][el] = _f1(_masks(part, spacing, cache, name, (float(highs[name]),))[0], truth)  # type: ignore[arg-type]
+            f1[name][el] = f1_score(_masks(part, spacing, cache, name, (float(highs[name]),))[0], truth)  # type: ignore[arg-type]
     print("\nRaw region-mask F1 per candidate (the leave-one-out choice reads these):")
     for name in usable:
         print(f"  {name:40s} " + "  ".join(f"{el} {f1[name][el]:.3f}" for el in REAL))
@@ -145,20 +153,20 @@ def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarra
         pick = choose(tuple(o for o in REAL if o != el))
         cloud, mask = real[el]
         loo[el] = find_cracks(cloud, _cfg(pick, float(highs[pick])), mask)  # type: ignore[arg-type]
-        print(_row(el, loo[el], PUBLISHED[el]) + f"  [{pick}, high {highs[pick]}]")
+        print(crack_row(el, loo[el], PUBLISHED[el]) + f"  [{pick}, high {highs[pick]}]")
     print(f"  published width: {PUBLISHED_WIDTH}")
 
     print("\nRidge (shipped round-C settings), same elements, same run:")
     for el in REAL:
         cloud, mask = real[el]
-        print(_row(el, find_cracks(cloud, CrackConfig(detector="ridge"), mask), PUBLISHED[el]))
+        print(crack_row(el, find_cracks(cloud, CrackConfig(detector="ridge"), mask), PUBLISHED[el]))
 
     print("\nOld default (shade+crackembed, isolation forest), same elements, same run:")
     old: dict[str, CrackResult] = {}
     for el in REAL:
         cloud, mask = real[el]
         old[el] = find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-        print(_row(el, old[el], PUBLISHED[el]))
+        print(crack_row(el, old[el], PUBLISHED[el]))
 
     new_f1 = float(np.mean([loo[e].scores.f1 for e in REAL]))  # type: ignore[union-attr]
     old_f1 = float(np.mean([old[e].scores.f1 for e in REAL]))  # type: ignore[union-attr]
@@ -175,27 +183,13 @@ def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarra
     print("\nSimulated intact elements never used for a choice (with marks), share flagged, shipped region settings:")
     shares = []
     for kind, seed in TEST_INTACT:
-        cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind), intact=True, marks=True)
+        cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), intact=True, marks=True)
         shares.append(find_cracks(cloud, cfg_default, mask).mask.mean())
         print(f"  {kind:6s} {seed}: region {shares[-1] * 100:5.2f} %")
     print(f"  worst {max(shares) * 100:.2f} %, mean {np.mean(shares) * 100:.2f} %")
 
     print("\nSimulated cracked elements never used for a choice (with marks), F1 with the shipped region settings:")
-    for kind in SIM_KINDS:
-        f = []
-        for seed in (310, 311, 312):
-            cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind), marks=True)
-            f.append(find_cracks(cloud, cfg_default, mask).scores.f1)  # type: ignore[union-attr]
-        print(f"  {kind:6s} F1 " + " ".join(f"{v:.2f}" for v in f))
+    print_simulated_f1(cfg_default, SIM_KINDS)
 
     cloud, mask = real["column2"]
-    t0 = time.perf_counter()
-    find_cracks(cloud, cfg_default, mask)
-    region_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-    old_s = time.perf_counter() - t0
-    print(
-        f"\nSpeed on column2 ({len(cloud)} points): region {region_s:.2f} s, old default {old_s:.2f} s "
-        f"(ratio {region_s / old_s:.2f}) on this shared machine; whole benchmark {time.perf_counter() - t_start:.0f} s"
-    )
+    print_speed_against_old_default("region", cloud, mask, cfg_default, t_start)

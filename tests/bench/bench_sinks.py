@@ -1,6 +1,6 @@
 """Sink throughput on Ouster-sized scans (about 100k points), and memory over a long recording.
 
-pytest -m slow -s tests/bench_sinks.py
+pytest -m slow -s tests/bench/bench_sinks.py
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import psutil
-import pytest
 from sinks_data import VELODYNE, make_frame, map_of, read_scans
 
 from aftershock.pipeline.config import RerunConfig
@@ -21,8 +20,6 @@ from aftershock.pipeline.types import Frame, RunInfo, RunSummary, Scan
 from aftershock.sinks.files import FileExportSink
 from aftershock.sinks.mcap_sink import McapSink
 from aftershock.sinks.rerun_sink import RerunSink
-
-pytestmark = pytest.mark.slow
 
 
 def _big_frames(lidar_dir: Path, n: int, copies: int = 7) -> list[Frame]:

@@ -26,25 +26,27 @@ from typing import Any, Final
 
 import numpy as np
 import pytest
+from cracks_common import (
+    PUBLISHED,
+    PUBLISHED_WIDTH,
+    crack_row,
+    evaluated_cloud,
+    f1_score,
+    print_simulated_f1,
+    print_speed_against_old_default,
+    sim_spacing,
+)
 
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import CrackConfig
-from aftershock.pipeline.damage.report import CrackResult, carry_mask, default_resolution, find_cracks
+from aftershock.pipeline.damage.report import CrackResult, find_cracks
 from aftershock.pipeline.damage.ridge import ridge_masks, settings_of
-from aftershock.pipeline.geometry import point_spacing, voxel_downsample
 from aftershock.pipeline.types import LabelledCloud
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
+pytestmark = pytest.mark.timeout(3600)
 
 SHARED: Final = ("column1", "column2", "slab2")
 BLIND: Final = "column4"
-PUBLISHED: Final = {
-    "column1": "F1 .55 (raw RGB .32)",
-    "column2": "F1 .67 (raw RGB .51)",
-    "slab2": "F1 ~.75 (raw RGB ~.62)",
-    "column4": "F1 .26 (raw RGB .22)",
-}
-PUBLISHED_WIDTH: Final = "width error 4 mm (study, mean of its elements)"
 _SCALES_COARSE: Final = (0.004, 0.008, 0.016, 0.032, 0.064)
 # round C: grey on 4-64 mm; the joint rule (thin straight axis-aligned strips are no crack) on or off, the rim rule
 # (one-sided contrast where the other side is off the face) off or on, the crack-pixel test off or on
@@ -65,34 +67,7 @@ SIM_KINDS: Final = ("column", "wall", "slab", "beam")
 CALIBRATION: Final = tuple((k, s) for k in SIM_KINDS for s in (300, 301))
 CALIBRATION_MAX: Final = 0.005  # half the 1 % target: the test elements are others
 TEST_INTACT: Final = tuple((k, s) for k in SIM_KINDS for s in (310, 311, 312))
-FAR_M: Final = 0.10
 BLIND_ROUND_A: Final = "F1 0.000, crack-free flagged 0.00 %, no crack found (round A, commit ae08433)"
-
-
-def _sim_spacing(kind: str) -> float:
-    return 0.008 if kind == "slab" else 0.003
-
-
-def _evaluated(cloud: LabelledCloud, truth: np.ndarray) -> tuple[LabelledCloud, np.ndarray, float]:
-    """The cloud find_cracks evaluates (one point per grid voxel), its carried truth and its spacing."""
-    keep, voxel_of = voxel_downsample(cloud.points, default_resolution(cloud.points))
-    part = cloud.select(keep)
-    return part, carry_mask(truth, voxel_of, len(keep)), point_spacing(part.points)
-
-
-def _f1(pred: np.ndarray, truth: np.ndarray) -> float:
-    tp = float(np.sum(pred & truth))
-    return 2 * tp / max(float(pred.sum() + truth.sum()), 1.0)
-
-
-def _far_share(points: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
-
-    far = np.ones(len(points), bool)
-    if truth.any():
-        dist, _ = cKDTree(points[truth]).query(points, k=1, distance_upper_bound=FAR_M, workers=-1)
-        far = ~np.isfinite(dist)
-    return float(mask[far].mean()) if far.any() else float("nan")
 
 
 def _cfg(name: str, high: float) -> CrackConfig:
@@ -112,8 +87,8 @@ def _calibrate() -> dict[str, float | None]:
 
     worst = {name: np.zeros(len(HIGH_GRID)) for name in CANDIDATES}
     for kind, seed in CALIBRATION:
-        cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind), intact=True, marks=True)
-        part, _, spacing = _evaluated(cloud, mask)
+        cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), intact=True, marks=True)
+        part, _, spacing = evaluated_cloud(cloud, mask)
         for name in CANDIDATES:
             masks = ridge_masks(part, spacing, settings_of(_cfg(name, 1.0)), highs=HIGH_GRID)
             worst[name] = np.maximum(worst[name], [m.mean() for m in masks])
@@ -122,18 +97,6 @@ def _calibrate() -> dict[str, float | None]:
         ok = np.flatnonzero(w <= CALIBRATION_MAX)
         out[name] = HIGH_GRID[int(ok[0])] if len(ok) else None
     return out
-
-
-def _row(label: str, r: CrackResult, published: str) -> str:
-    s = r.scores
-    assert s is not None and r.truth is not None
-    far = _far_share(r.cloud.points, r.truth, r.mask)
-    le = "n/a" if not np.isfinite(s.length_error_m) else f"{s.length_error_m * 1000:.0f}"
-    we = "n/a" if not np.isfinite(s.width_error_m) else f"{s.width_error_m * 1000:.1f}"
-    return (
-        f"  {label:8s} F1 {s.f1:.3f} (P {s.precision:.2f} R {s.recall:.2f})  crack-free flagged {far * 100:5.2f} %  "
-        f"main crack length error {le} mm, width error {we} mm  | published {published}"
-    )
 
 
 def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
@@ -149,14 +112,14 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
     assert usable, "no candidate meets the intact calibration"
     # F1 of every usable candidate on every real element (points of the evaluated cloud, ridge mask as is)
     f1: dict[str, dict[str, float]] = {}
-    evaluated = {n: _evaluated(c, m) for n, (c, m) in real.items()}
+    evaluated = {n: evaluated_cloud(c, m) for n, (c, m) in real.items()}
     for name in usable:
         cfg = _cfg(name, float(highs[name]))  # type: ignore[arg-type]
         f1[name] = {}
         for el, (part, truth, spacing) in evaluated.items():
             if el == BLIND:
                 continue  # column4 enters the choices only after its blind result is printed
-            f1[name][el] = _f1(ridge_masks(part, spacing, settings_of(cfg))[0], truth)
+            f1[name][el] = f1_score(ridge_masks(part, spacing, settings_of(cfg))[0], truth)
 
     def choose(others: tuple[str, ...]) -> str:
         return max(usable, key=lambda n: float(np.mean([f1[n][o] for o in others])))
@@ -165,13 +128,13 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
     on_three = choose(SHARED)
     print(f"column4 with the candidate best on column1, column2, slab2 ({on_three}), current method, not blind:")
     cloud, mask = real[BLIND]
-    print(_row(BLIND, find_cracks(cloud, _cfg(on_three, float(highs[on_three])), mask), PUBLISHED[BLIND]))  # type: ignore[arg-type]
+    print(crack_row(BLIND, find_cracks(cloud, _cfg(on_three, float(highs[on_three])), mask), PUBLISHED[BLIND]))  # type: ignore[arg-type]
 
     # column4 now joins the leave-one-out like the others
     for name in usable:
         part, truth, spacing = evaluated[BLIND]
         cfg = _cfg(name, float(highs[name]))  # type: ignore[arg-type]
-        f1[name][BLIND] = _f1(ridge_masks(part, spacing, settings_of(cfg))[0], truth)
+        f1[name][BLIND] = f1_score(ridge_masks(part, spacing, settings_of(cfg))[0], truth)
     names = (*SHARED, BLIND)
     default = choose(names)
     cfg_default = _cfg(default, float(highs[default]))  # type: ignore[arg-type]
@@ -185,7 +148,7 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
         pick = choose(tuple(o for o in names if o != el))
         cloud, mask = real[el]
         loo[el] = find_cracks(cloud, _cfg(pick, float(highs[pick])), mask)  # type: ignore[arg-type]
-        print(_row(el, loo[el], PUBLISHED[el]) + f"  [{pick}]")
+        print(crack_row(el, loo[el], PUBLISHED[el]) + f"  [{pick}]")
     print(f"  published width: {PUBLISHED_WIDTH}")
 
     print("\nOld default (shade+crackembed, isolation forest), same elements, same run:")
@@ -193,14 +156,14 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
     for el in names:
         cloud, mask = real[el]
         old[el] = find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-        print(_row(el, old[el], PUBLISHED[el]))
+        print(crack_row(el, old[el], PUBLISHED[el]))
 
     from aftershock.sources.simulator.cracks import cracked_element
 
     print("\nSimulated intact elements never used for a choice (with marks), share of points flagged:")
     shares_new, shares_old = [], []
     for kind, seed in TEST_INTACT:
-        cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind), intact=True, marks=True)
+        cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), intact=True, marks=True)
         new = find_cracks(cloud, cfg_default, mask).mask.mean()
         was = find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
         shares_new.append(new)
@@ -212,21 +175,7 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
     )
 
     print("\nSimulated cracked elements never used for a choice (with marks), F1 with the default:")
-    for kind in SIM_KINDS:
-        f = []
-        for seed in (310, 311, 312):
-            cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind), marks=True)
-            f.append(find_cracks(cloud, cfg_default, mask).scores.f1)  # type: ignore[union-attr]
-        print(f"  {kind:6s} F1 " + " ".join(f"{v:.2f}" for v in f))
+    print_simulated_f1(cfg_default, SIM_KINDS)
 
     cloud, mask = real["column2"]
-    t0 = time.perf_counter()
-    find_cracks(cloud, cfg_default, mask)
-    ridge_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-    old_s = time.perf_counter() - t0
-    print(
-        f"\nSpeed on column2 ({len(cloud)} points): ridge {ridge_s:.2f} s, old default {old_s:.2f} s "
-        f"(ratio {ridge_s / old_s:.2f}) on this shared machine; whole benchmark {time.perf_counter() - t_start:.0f} s"
-    )
+    print_speed_against_old_default("ridge", cloud, mask, cfg_default, t_start)

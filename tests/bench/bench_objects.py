@@ -1,6 +1,6 @@
 """Objects, not fragments: MCPNet's online clustering on held-out simulated missions, as the user sees it.
 
-    make bench-objects      # pytest -m slow -s tests/bench_objects.py
+    make bench-objects      # pytest -m slow -s tests/bench/bench_objects.py
 
 Per held-out mission (office and disaster, seeds 900/901, VLP-16, 150 scans; never used to choose a
 setting): the true objects in the map, the objects shown (at least `cluster.min_object_voxels`), the
@@ -17,9 +17,9 @@ from typing import Any, Final
 
 import numpy as np
 import pytest
-from bench_mcpnet import _run, missions  # noqa: F401 - the held-out missions fixture
+from common import stream_labeller
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
+pytestmark = pytest.mark.timeout(7200)
 # OBJECTS_BENCH_POSES=truth runs only one of the two pose sources.
 POSES: Final = tuple(p for p in os.environ.get("OBJECTS_BENCH_POSES", "estimated,truth").split(",") if p)
 
@@ -33,8 +33,7 @@ def _row(name: str, r: dict[str, Any]) -> str:
     )
 
 
-@pytest.mark.slow
-def test_objects_on_held_out_missions(missions: list[Path]) -> None:  # noqa: F811
+def test_objects_on_held_out_missions(heldout_missions: list[Path]) -> None:
     print(
         "\n| mission (poses) | true | shown | fragments | shown/true | precision | recall | inst. mIoU | NMI | ARI | "
         "OA | mIoU | cluster ms/scan |"
@@ -42,8 +41,8 @@ def test_objects_on_held_out_missions(missions: list[Path]) -> None:  # noqa: F8
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     means: dict[str, dict[str, float]] = {}
     for poses in POSES:
-        reps = [_run(m, "mcpnet", [f"registration.poses={poses}"]) for m in missions]
-        for m, r in zip(missions, reps, strict=True):
+        reps = [stream_labeller(m, "mcpnet", [f"registration.poses={poses}"]) for m in heldout_missions]
+        for m, r in zip(heldout_missions, reps, strict=True):
             print(_row(f"{m.stem} ({poses})", r))
         mean = {k: float(np.mean([r[k] for r in reps])) for k in ("precision", "recall", "nmi", "ari")}
         mean["ratio"] = float(np.mean([r["predicted_instances"] / max(r["true_instances"], 1) for r in reps]))

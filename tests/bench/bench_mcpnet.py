@@ -1,6 +1,6 @@
 """MCPNet against its baselines on held-out simulated missions (buildings never trained on, both families).
 
-    make bench-mcpnet      # pytest -m slow -s tests/bench_mcpnet.py
+    make bench-mcpnet      # pytest -m slow -s tests/bench/bench_mcpnet.py
 
 Prints one table like the study's (overall/mean accuracy, mean/overall IoU, NMI, AMI, ARI, ms per scan of
 the labelling stage, network size, peak memory), the targets met or not, the whole stream's speed with a
@@ -11,21 +11,15 @@ streamed from a pickle one scan at a time (so the peak memory is that of the who
 
 from __future__ import annotations
 
-import json
-import os
-import pickle
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-import pytest
+from common import BENCH_SEEDS, DOCS, stream_labeller
 
-from aftershock.models.mcpnet_train import FAMILIES, HELDOUT_SCANS, HELDOUT_SEEDS, SENSOR
+from aftershock.models.mcpnet_train import HELDOUT_SCANS, SENSOR
 
-REPO: Final = Path(__file__).resolve().parents[1]
-PLOT: Final = REPO / "docs" / "mcpnet_context_points.png"
+PLOT: Final = DOCS / "mcpnet_context_points.png"
 METHODS: Final = ("mcpnet", "mcpnet-nocontext", "pointnet", "pointnet-temporal", "pointnet-spatial", "region-growing")
 WEIGHTS: Final = {
     "mcpnet": "mcpnet.pt",
@@ -35,78 +29,12 @@ WEIGHTS: Final = {
     "pointnet-spatial": "pointnet.pt",
 }
 CONTEXT_SWEEP: Final = (5, 10, 25, 50, 100)
-# MCPNET_BENCH_SEEDS=900 limits the held-out seeds (both families always), for a quicker run.
-BENCH_SEEDS: Final = tuple(int(s) for s in os.environ.get("MCPNET_BENCH_SEEDS", "").split(",") if s) or HELDOUT_SEEDS
-
-# One run of the stream in a fresh process: scans from a pickle, a labeller, config overrides -> JSON.
-WORKER: Final = r"""
-import json, pickle, resource, sys, tempfile
-from pathlib import Path
-from aftershock.pipeline.commands.evaluate import evaluate_map
-from aftershock.pipeline.config import load_config
-from aftershock.pipeline.stream import run_stream
-from aftershock.pipeline.types import RunInfo
-scans_path, labeller, overrides, rerun = sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), sys.argv[4] == "1"
-cfg = load_config(None, [f"label.labeller={labeller}", *overrides])
-def scans():  # one scan in memory at a time, as from a log
-    with open(scans_path, "rb") as f:
-        while True:
-            try:
-                yield pickle.load(f)
-            except EOFError:
-                return
-sinks = []
-if rerun:
-    from aftershock.sinks.rerun_sink import RerunSink
-    sinks.append(RerunSink(Path(tempfile.mkdtemp()) / "bench.rrd", False, None, cfg.rerun))
-res = run_stream(scans(), cfg, sinks, RunInfo(source=scans_path, source_kind="sim"), lambda _t: None)
-out = evaluate_map(res.vmap)
-out.update(
-    timings=res.summary.mean_timings_ms,
-    scans_per_second=res.summary.scans_per_second,
-    scans=res.summary.scans,
-    fragments=res.summary.fragments,
-    peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-    labeller=res.labeller,
-)
-print(json.dumps(out))
-"""
-
-
-def _run(scans: Path, labeller: str, overrides: list[str] | None = None, rerun: bool = False) -> dict[str, Any]:
-    out = subprocess.run(
-        [sys.executable, "-c", WORKER, str(scans), labeller, json.dumps(overrides or []), "1" if rerun else "0"],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=3600,
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def _overall_iou(rep: dict[str, Any]) -> float:
     """Overall IoU = the IoU over all points pooled: correct / (2 N - correct) for single-label points."""
     n, oa = rep["evaluated_points"], rep["overall_accuracy"]
     return oa * n / (2 * n - oa * n) if n else 0.0
-
-
-@pytest.fixture(scope="module")
-def missions(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    from aftershock import sources
-
-    root = tmp_path_factory.mktemp("heldout")
-    paths = []
-    for family in FAMILIES:
-        for seed in BENCH_SEEDS:
-            assert seed in HELDOUT_SEEDS, f"seed {seed} is not held out"
-            uri = f"sim://{family}?seed={seed}&sensor={SENSOR}&scans={HELDOUT_SCANS}"
-            path = root / f"{family}_{seed}.pkl"
-            with path.open("wb") as f:
-                for scan in sources.open(uri):
-                    pickle.dump(scan, f)
-            paths.append(path)
-    return paths
 
 
 def _size(method: str) -> tuple[float, int]:
@@ -119,11 +47,10 @@ def _size(method: str) -> tuple[float, int]:
     return path.stat().st_size / 1e6, num_parameters(model)
 
 
-@pytest.mark.slow
-def test_mcpnet_against_baselines(missions: list[Path]) -> None:
+def test_mcpnet_against_baselines(heldout_missions: list[Path]) -> None:
     rows: dict[str, dict[str, float]] = {}
     for method in METHODS:
-        reps = [_run(m, method) for m in missions]
+        reps = [stream_labeller(m, method) for m in heldout_missions]
         pts = np.array([r["evaluated_points"] for r in reps], float)
         w = pts / pts.sum()
 
@@ -146,13 +73,13 @@ def test_mcpnet_against_baselines(missions: list[Path]) -> None:
             "params": params,
             "peak_mb": float(max(r["peak_rss_mb"] for r in reps)),
         }
-        for r, m in zip(reps, missions, strict=True):
+        for r, m in zip(reps, heldout_missions, strict=True):
             print(
                 f"  {method:18s} {m.stem:14s} OA {r['overall_accuracy'] * 100:5.1f} mIoU {r['mean_iou'] * 100:5.1f} "
                 f"NMI {r['nmi'] * 100:5.1f} ARI {r['ari'] * 100:5.1f} label {r['timings']['label']:.1f} ms"
             )
 
-    print(f"\nheld-out missions: {', '.join(m.stem for m in missions)} ({SENSOR}, {HELDOUT_SCANS} scans each)")
+    print(f"\nheld-out missions: {', '.join(m.stem for m in heldout_missions)} ({SENSOR}, {HELDOUT_SCANS} scans each)")
     print(
         "| method | mean IoU | overall IoU | mean acc | overall acc | NMI | AMI | ARI | ms/scan (label) | "
         "scans/s (label) | size MB (params) | peak RSS MB |"
@@ -166,7 +93,7 @@ def test_mcpnet_against_baselines(missions: list[Path]) -> None:
             f"{r['peak_mb']:.0f} |"
         )
 
-    stream = [_run(m, "mcpnet", rerun=True) for m in missions]
+    stream = [stream_labeller(m, "mcpnet", rerun=True) for m in heldout_missions]
     sps = float(np.mean([r["scans_per_second"] for r in stream]))
     print(
         f"\nwhole stream with a Rerun recording (mcpnet): {sps:.1f} scans/s; ms per scan "
@@ -193,17 +120,16 @@ def test_mcpnet_against_baselines(missions: list[Path]) -> None:
     assert checks["context pooling >= +5 mean IoU"]
 
 
-@pytest.mark.slow
-def test_context_points_sweep(missions: list[Path]) -> None:
+def test_context_points_sweep(heldout_missions: list[Path]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    picked = [m for m in missions if m.stem.endswith(str(BENCH_SEEDS[0]))]
+    picked = [m for m in heldout_missions if m.stem.endswith(str(BENCH_SEEDS[0]))]
     oa, miou, ms = [], [], []
     for num in CONTEXT_SWEEP:
-        reps = [_run(m, "mcpnet", [f"map.context_points={num}"]) for m in picked]
+        reps = [stream_labeller(m, "mcpnet", [f"map.context_points={num}"]) for m in picked]
         oa.append(float(np.mean([r["overall_accuracy"] for r in reps])))
         miou.append(float(np.mean([r["mean_iou"] for r in reps])))
         ms.append(float(np.mean([r["timings"]["label"] for r in reps])))

@@ -19,12 +19,12 @@ seeds of the training generators only; the held-out generator and the test seeds
 from __future__ import annotations
 
 import os
-import pickle
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 import pytest
+from common import pickle_scans, stream_labeller
 
 from aftershock.models.transfer_split import (
     FAMILIES,
@@ -36,7 +36,7 @@ from aftershock.models.transfer_split import (
 )
 from aftershock.pipeline.classes import CLASS_NAMES
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(7200)]
+pytestmark = pytest.mark.timeout(7200)
 
 SCANS: Final = int(os.environ.get("TRANSFER_SCANS", "100"))
 SEEDS: Final = tuple(int(s) for s in os.environ.get("TRANSFER_SEEDS", "").split(",") if s) or TEST_SEEDS
@@ -53,7 +53,6 @@ LRG_KEYS: Final = ("nmi", "ami", "ari", "precision", "recall")
 @pytest.fixture(scope="module")
 def missions(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, bool], list[Path]]:
     """Pickled scans of every (generator, colour) mission, simulated once."""
-    from aftershock import sources
 
     assert not set(SEEDS) & set(range(100, 900)), "test seeds only"
     root = tmp_path_factory.mktemp("transfer")
@@ -63,10 +62,7 @@ def missions(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, bool],
             paths = []
             for seed in SEEDS:
                 path = root / f"{gen}_{seed}_{'rgb' if color else 'mono'}.pkl"
-                with path.open("wb") as f:
-                    for scan in sources.open(bench_uri(gen, seed, SCANS, color)):
-                        pickle.dump(scan, f)
-                paths.append(path)
+                paths.append(pickle_scans(bench_uri(gen, seed, SCANS, color), path))
             out[(gen, color)] = paths
     return out
 
@@ -96,13 +92,11 @@ def _overrides(method: str) -> list[str]:
 
 
 def test_mcpnet_transfer(missions: dict[tuple[str, bool], list[Path]]) -> None:
-    from bench_mcpnet import _run
-
     table: dict[str, dict[tuple[str, bool], dict[str, Any]]] = {}
     for method in METHODS:
         table[method] = {}
         for key, paths in missions.items():
-            table[method][key] = _pooled([_run(p, method, _overrides(method)) for p in paths])
+            table[method][key] = _pooled([stream_labeller(p, method, _overrides(method)) for p in paths])
             r = table[method][key]
             print(
                 f"  {method:16s} {key[0]:9s} {'rgb ' if key[1] else 'mono'} OA {r['overall_accuracy'] * 100:5.1f} "
@@ -168,9 +162,6 @@ def test_mcpnet_transfer(missions: dict[tuple[str, bool], list[Path]]) -> None:
 def test_validation_choice(tmp_path: Path) -> None:
     """Candidate MCPNet weights (TRANSFER_CANDIDATE, comma-separated) against the shipped ones (or
     TRANSFER_SHIPPED) on validation missions of the training generators."""
-    from bench_mcpnet import _run
-
-    from aftershock import sources
 
     candidates = [c for c in os.environ.get("TRANSFER_CANDIDATE", "").split(",") if c]
     if not candidates:
@@ -190,13 +181,9 @@ def test_validation_choice(tmp_path: Path) -> None:
         for color in colors:
             paths = []
             for seed in VALIDATION_SEEDS[:1]:
-                path = tmp_path / f"{gen}_{seed}_{color}.pkl"
-                with path.open("wb") as f:
-                    for scan in sources.open(bench_uri(gen, seed, scans, color)):
-                        pickle.dump(scan, f)
-                paths.append(path)
+                paths.append(pickle_scans(bench_uri(gen, seed, scans, color), tmp_path / f"{gen}_{seed}_{color}.pkl"))
             for name, overrides in weights.items():
-                rows[name][(gen, color)] = r = _pooled([_run(p, "mcpnet", overrides) for p in paths])
+                rows[name][(gen, color)] = r = _pooled([stream_labeller(p, "mcpnet", overrides) for p in paths])
                 print(
                     f"  validation {name:9s} {gen:9s} {'rgb ' if color else 'mono'} "
                     f"OA {r['overall_accuracy'] * 100:5.1f} mIoU {r['mean_iou'] * 100:5.1f} "
