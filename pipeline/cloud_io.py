@@ -196,18 +196,16 @@ def write_cloud(
         for i, name in enumerate(("nx", "ny", "nz")):
             fields.append((name, "f4"))
             columns[name] = cloud.normals[:, i]
-    if cloud.intensity is not None:
-        fields.append(("intensity", "f4"))
-        columns["intensity"] = cloud.intensity
-    if cloud.class_ids is not None:
-        fields.append(("class_id", "i4"))
-        columns["class_id"] = cloud.class_ids
-    if cloud.instance_ids is not None:
-        fields.append(("instance_id", "i4"))
-        columns["instance_id"] = cloud.instance_ids
-    if cloud.confidence is not None:
-        fields.append(("confidence", "f4"))
-        columns["confidence"] = cloud.confidence
+    optional = (
+        ("intensity", "f4", cloud.intensity),
+        ("class_id", "i4", cloud.class_ids),
+        ("instance_id", "i4", cloud.instance_ids),
+        ("confidence", "f4", cloud.confidence),
+    )
+    for name, kind, values in optional:
+        if values is not None:
+            fields.append((name, kind))
+            columns[name] = values
     data = np.empty(n, dtype=fields)
     for name, _ in fields:
         data[name] = columns[name]

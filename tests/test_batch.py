@@ -21,7 +21,7 @@ from fixtures import interruptible, truncate_in_chunk
 from rrd_read import read_rrd
 
 from aftershock.pipeline.batch.folder import MARKER_FILE, completed_row
-from aftershock.pipeline.batch.site_index import COLUMN_NAMES, OBJECT_COLUMNS
+from aftershock.pipeline.batch.site_index import COLUMN_NAMES, OBJECT_COLUMNS, STRUCTURE_COLUMNS
 from aftershock.pipeline.batch.sources import expand_sources, name_missions
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import read_cloud
@@ -96,6 +96,9 @@ def test_batch_on_a_two_node_cluster(cluster: str, lidar_dir: Path, tmp_path: Pa
         folder = out / name
         summary = json.loads((folder / "summary.json").read_text())
         assert summary["scans"] == r["scans"] and summary["map_voxels"] == r["map_voxels"]
+        found = summary["structure_elements"]  # the structure model's elements, counted per kind in the index
+        for col, kinds in STRUCTURE_COLUMNS.items():
+            assert r[col] == sum(found.get(k, 0) for k in kinds), (name, col)
         assert len((folder / "poses_tum.txt").read_text().splitlines()) == r["scans"]
         assert len((folder / "poses_kitti.txt").read_text().splitlines()) == r["scans"]
         assert len(read_cloud(folder / "map.ply")) > 0
@@ -105,6 +108,7 @@ def test_batch_on_a_two_node_cluster(cluster: str, lidar_dir: Path, tmp_path: Pa
         assert Path(r["recording"]) == folder / "recording.rrd" and Path(r["map"]) == folder / "map.ply"
         assert completed_row(folder, r["source"], r["config_hash"]) is not None
     assert table["office"]["scans"] == 12 and table["disaster"]["scans"] == 10
+    assert table["office"]["structure_slabs"] >= 1 and table["office"]["structure_walls"] >= 1  # a simulated office
     assert table["office"]["ate_m"] is not None and table["office"]["ate_m"] < 0.5  # the simulator's true poses
     assert table["office"]["path_length_m"] > 0 and table["office"]["duration_s"] > 0
     assert table["velodyne_vlp16_indoor"]["ate_m"] is None  # no truth in a real log

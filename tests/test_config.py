@@ -8,20 +8,12 @@ import json
 from pathlib import Path
 
 import pytest
+from cli_errors import RG, cli
 from faults_data import write_log
 
-from aftershock.pipeline.cli import main
 from aftershock.pipeline.config import Config, Environment, load_config
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.mission import build_config
-
-RG: tuple[str, ...] = ("--labeller", "region-growing")
-
-
-def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(args)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def assert_one_line(err: str, *names: object) -> None:

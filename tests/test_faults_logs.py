@@ -15,28 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_errors import RG, cli, one_error_line
 from faults_data import write_log
 from faults_hostile import ENV, log_with_late_times, repoint_chunk_index
 from fixtures import write_bag
-
-from aftershock.pipeline.cli import main
-
-RG = ("--labeller", "region-growing")
-
-
-def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(args)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_error_line(err: str, *names: object) -> str:
-    assert "Traceback" not in err and "\x1b" not in err, err
-    lines = [ln for ln in err.strip().splitlines() if ln.startswith("aftershock: error:")]
-    assert len(lines) == 1 and err.strip().splitlines()[-1] == lines[0], err
-    for name in names:
-        assert str(name) in lines[0], (name, lines[0])
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

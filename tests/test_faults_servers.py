@@ -12,26 +12,17 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+import cli_errors
 import pytest
+from cli_errors import cli
 from faults_data import write_log
 from faults_hostile import ENV
 
-from aftershock.pipeline.cli import main
-
-
-def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(args)
-    out, err = capsys.readouterr()
-    return code, out, err
-
 
 def one_error_line(err: str, *names: object) -> str:
-    assert "Traceback" not in err, err
-    errors = [ln for ln in err.strip().splitlines() if "error" in ln.lower()]
-    assert len(errors) == 1 and errors[0].startswith("aftershock: error:"), err
-    for name in names:
-        assert str(name) in errors[0], (name, errors[0])
-    return errors[0]
+    """One error line, and no other line of stderr speaks of an error (Rerun's own logger is silenced)."""
+    assert sum("error" in ln.lower() for ln in err.strip().splitlines()) == 1, err
+    return cli_errors.one_error_line(err, *names, escapes=True)
 
 
 @pytest.fixture(scope="module")

@@ -8,28 +8,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cli_errors
 import pytest
+from cli_errors import RG, cli
 from faults_data import write_log
 
-from aftershock.pipeline.cli import main
-
-RG = ("--labeller", "region-growing")
 DEEP = 100_000
 
 
-def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(args)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def one_error_line(err: str, *names: object) -> str:
-    assert "Traceback" not in err, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("aftershock: error:"), err
-    for name in names:
-        assert str(name) in lines[0], (name, lines[0])
-    return lines[0]
+    """The error is all of stderr."""
+    return cli_errors.one_error_line(err, *names, alone=True, escapes=True)
 
 
 @pytest.fixture(scope="module")

@@ -34,7 +34,7 @@ ITEMS = [
     "floors and slabs",
     "debris blocking exits",
 ]
-STOREY_KEYS = {"drift_mm", "drift_ratio", "tilt_deg", "uncertainty_mm", "reason"}
+STOREY_KEYS = {"drift_mm", "drift_ratio", "tilt_deg", "tilt_uncertainty_deg", "uncertainty_mm", "reason"}
 
 
 def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -62,7 +62,7 @@ def _check_promise(data: dict) -> None:
             continue
         for s in m["storeys"]:
             assert set(s) >= STOREY_KEYS
-            for key in ("drift_mm", "drift_ratio", "tilt_deg", "uncertainty_mm"):
+            for key in ("drift_mm", "drift_ratio", "tilt_deg", "tilt_uncertainty_deg", "uncertainty_mm"):
                 if s[key] is None:
                     assert s["reason"], (key, s)
         assert [i["item"] for i in m["checklist"]] == ITEMS
@@ -147,23 +147,29 @@ def test_a_frame_with_storeys_gets_drift_ratios_flags_and_a_posting(
         assert error <= s["uncertainty_mm"]
         assert s["drift_ratio"] == pytest.approx(s["drift_mm"] / 1000 / s["height_m"], rel=1e-3)
         assert s["drift_ratio_text"] == f"1/{round(1 / s['drift_ratio'])}"
-        ratio, tilt = s["drift_ratio"], s["tilt_deg"]
-        if ratio >= limits.drift_unsafe_ratio or tilt >= limits.tilt_unsafe_deg:
+        assert s["tilt_uncertainty_deg"] > 0  # measured from the slabs' own points
+        # evidence of exceeding a limit: value - uncertainty above it
+        ratio = s["drift_ratio"] - s["uncertainty_mm"] / 1000 / s["height_m"]
+        tilt = s["tilt_deg"] - s["tilt_uncertainty_deg"]
+        if ratio > limits.drift_unsafe_ratio or tilt > limits.tilt_unsafe_deg:
             assert s["flag"] == "unsafe"
             worst = "unsafe"
-        elif ratio >= limits.drift_restricted_ratio or tilt >= limits.tilt_restricted_deg:
+        elif ratio > limits.drift_restricted_ratio or tilt > limits.tilt_restricted_deg:
             assert s["flag"] == "restricted use"
             worst = worst if worst == "unsafe" else "restricted use"
         else:
-            assert s["flag"] == "within limits"
+            assert s["flag"] in {"within limits", "within measurement uncertainty of the limit"}
     leaning = next(i for i in m["checklist"] if i["item"] == "building or storey leaning")
     assert leaning["status"] in {"found", "none"} and "mm" in leaning["evidence"]
     if worst != "inspected":
         assert m["posting"]["suggested"] in {worst, "unsafe"}
     kinds = [(f["kind"], f["storey"]) for f in m["findings"]]
     for s in m["storeys"]:  # every storey over a limit is a numbered finding
-        assert (("drift", s["index"]) in kinds) == (s["drift_ratio"] >= limits.drift_restricted_ratio)
-        assert (("tilt", s["index"]) in kinds) == (s["tilt_deg"] >= limits.tilt_restricted_deg)
+        ratio = s["drift_ratio"] - s["uncertainty_mm"] / 1000 / s["height_m"]
+        assert (("drift", s["index"]) in kinds) == (ratio > limits.drift_restricted_ratio)
+        assert (("tilt", s["index"]) in kinds) == (
+            s["tilt_deg"] - s["tilt_uncertainty_deg"] > limits.tilt_restricted_deg
+        )
     assert [f["number"] for f in m["findings"]] == list(range(1, len(m["findings"]) + 1))
     _chromium_ok(folder / "report.html")
 
@@ -223,3 +229,85 @@ def test_bad_input_is_one_line_naming_the_file(
     assert (damaged / "report.html").read_bytes() == before
     code, _, err = _run(["report", str(damaged), "--force"], capsys)
     assert code == 0, err
+
+
+def _room(ceiling_tilt_deg: float, sag_m: float = 0.0, seed: int = 0) -> np.ndarray:
+    """A 6 m x 5 m room, 3 m high, at 5 cm spacing with 3 mm range noise: a level floor, four walls and a ceiling
+    turned by `ceiling_tilt_deg` about x that sags `sag_m` in its middle (a warped slab)."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.arange(-3.0, 3.0, 0.05), np.arange(-2.5, 2.5, 0.05))
+    x, y = x.ravel(), y.ravel()
+    floor = np.c_[x, y, np.zeros_like(x)]
+    sag = sag_m * (1.0 - (x / 3.0) ** 2 - (y / 2.5) ** 2)
+    ceiling = np.c_[x, y, 3.0 + y * np.tan(np.deg2rad(ceiling_tilt_deg)) - sag]
+    walls = []
+    for h in np.arange(0.05, 2.95, 0.05):
+        xs, ys = np.arange(-3.0, 3.0, 0.05), np.arange(-2.5, 2.5, 0.05)
+        walls += [
+            np.c_[xs, np.full_like(xs, -2.5), np.full_like(xs, h)],
+            np.c_[xs, np.full_like(xs, 2.45), np.full_like(xs, h)],
+        ]
+        walls += [
+            np.c_[np.full_like(ys, -3.0), ys, np.full_like(ys, h)],
+            np.c_[np.full_like(ys, 2.95), ys, np.full_like(ys, h)],
+        ]
+    pts = np.concatenate([floor, ceiling, *walls])
+    return pts + rng.normal(0.0, 0.003, pts.shape)
+
+
+def _assess_room(points: np.ndarray) -> dict:
+    from aftershock.pipeline.config import Config
+    from aftershock.pipeline.report.assess import assess_mission
+    from aftershock.pipeline.report.gather import MissionData
+
+    entry, _ = assess_mission(MissionData("room", "ok", cloud=LabelledCloud(points)), Config())
+    return entry
+
+
+def test_a_slab_tilted_well_beyond_the_limit_is_flagged() -> None:
+    limits = ReportConfig()
+    m = _assess_room(_room(2.0))
+    [s] = m["storeys"]
+    print(f"tilt {s['tilt_deg']:.3f} ± {s['tilt_uncertainty_deg']:.3f}°")
+    assert s["tilt_deg"] == pytest.approx(2.0, abs=0.05)
+    assert 0 < s["tilt_uncertainty_deg"] < 0.1  # a flat slab's normal is known to a few hundredths of a degree
+    assert s["tilt_deg"] - s["tilt_uncertainty_deg"] > limits.tilt_unsafe_deg and s["flag"] == "unsafe"
+    assert ("tilt", 0) in [(f["kind"], f["storey"]) for f in m["findings"]]
+    slabs = next(i for i in m["checklist"] if i["item"] == "floors and slabs")
+    assert slabs["status"] == "found" and "± " in slabs["evidence"]
+    assert m["posting"]["suggested"] == "unsafe"
+
+
+def test_a_slab_within_its_uncertainty_of_the_limit_is_not_flagged() -> None:
+    """A ceiling tilted a little over the limit that sags 3 cm: the quadrants' planes disagree by more than the
+    tilt's distance to the limit, so the tilt is no evidence either way -- said so, and not escalated on."""
+    limit = ReportConfig().tilt_restricted_deg
+    m = _assess_room(_room(limit + 0.06, sag_m=0.03))
+    [s] = m["storeys"]
+    print(f"tilt {s['tilt_deg']:.3f} ± {s['tilt_uncertainty_deg']:.3f}°")
+    assert s["tilt_deg"] > limit and s["tilt_deg"] - s["tilt_uncertainty_deg"] <= limit
+    assert s["flag"] == "within measurement uncertainty of the limit"
+    assert "tilt" not in [f["kind"] for f in m["findings"]]
+    slabs = next(i for i in m["checklist"] if i["item"] == "floors and slabs")
+    assert "within measurement uncertainty of the limit" in slabs["evidence"]
+    assert slabs["status"] == "not_assessable"  # no crack assessment, and the tilt settles nothing
+    assert not any("limit" in r for r in m["posting"]["reasons"]), m["posting"]
+    assert "within measurement uncertainty of the limit" in m["posting"]["rule"]
+
+
+def test_tilt_uncertainty_is_null_with_the_reason_where_not_measured() -> None:
+    """Slabs read from damage.json (no map, so no slab points): the tilt is there, its uncertainty is not."""
+    from aftershock.pipeline.config import Config
+    from aftershock.pipeline.report.assess import assess_mission
+    from aftershock.pipeline.report.gather import MissionData
+
+    tilted = [np.sin(np.deg2rad(1.0)), 0.0, np.cos(np.deg2rad(1.0)), -3.0]
+    stories = [
+        {"index": 0, "height_m": 0.0, "plane": [0.0, 0.0, 1.0, 0.0], "drift_x_mm": 0.0, "drift_y_mm": 0.0},
+        {"index": 1, "height_m": 3.0, "plane": tilted, "drift_x_mm": 2.0, "drift_y_mm": 0.0},
+    ]
+    entry, _ = assess_mission(MissionData("room", "ok", damage={"stories": stories, "notes": []}), Config())
+    [s] = entry["storeys"]
+    assert s["tilt_deg"] == pytest.approx(1.0, abs=1e-3) and s["tilt_uncertainty_deg"] is None
+    assert "tilt uncertainty not measured" in s["reason"] and "damage.json" in s["reason"]
+    assert s["flag"] == "unsafe"  # no uncertainty stated: the value alone is compared

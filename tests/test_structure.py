@@ -145,6 +145,26 @@ def test_confident_debris_on_a_floor_keeps_its_label_and_unsure_labels_take_the_
     assert np.mean(vmap.class_ids[floor] == C.FLOOR) > 0.95  # the network's "wall" on the floor is overruled
 
 
+def test_a_wall_the_network_called_ceiling_is_shown_sure_unless_its_geometry_is_weak() -> None:
+    # the fused label's confidence is the element's support where the network disagreed: uncertain_below is 0.5
+    for min_voxels, unsure_walls in ((150, 0), (4000, 2)):  # 4000: the 6 m walls (about 1700 voxels) are weak
+        pts, truth = room()
+        net = np.where(truth == C.WALL, C.CEILING, truth).astype(np.uint16)
+        vmap, rows = _map(pts, net, score=0.8)
+        _run(vmap, cfg=StructureConfig(slab_min_voxels=min_voxels))
+        walls = np.unique(rows[truth == C.WALL])
+        walls = walls[vmap.class_ids[walls] == C.WALL]
+        assert len(walls) > 0.9 * len(np.unique(rows[truth == C.WALL]))
+        short = np.abs(vmap.positions[walls, 0] - 4.0) > 3.9  # the walls at x = 0 and x = 8
+        under = vmap.scores[walls] < 0.5
+        if unsure_walls:
+            assert np.mean(under[short]) > 0.95 and np.mean(under[~short]) < 0.05
+        else:
+            assert not under.any()
+        floor = np.unique(rows[truth == C.FLOOR])
+        assert np.all(vmap.scores[floor[vmap.class_ids[floor] == C.FLOOR]] > 0.8)  # the network agreed: surer
+
+
 def test_no_ceiling_below_the_sensor_and_no_floor_above_it() -> None:
     pts, truth = room()
     net = truth.copy()
@@ -176,6 +196,8 @@ def test_an_outdoor_map_has_ground_never_floor_or_ceiling() -> None:
     assert np.mean(got[: len(x)] == C.GROUND) > 0.95
     assert not np.isin(got, [C.FLOOR, C.CEILING]).any()
     assert any(e.kind is Kind.GROUND for e in model.elements(vmap))
+    ground = got == C.GROUND
+    assert np.all(vmap.scores[rows][ground] > 0.9)  # the ground (no network class) has its geometry's confidence
 
 
 def test_a_tilted_map_without_a_floor_keeps_the_networks_labels_and_says_so_once() -> None:

@@ -29,6 +29,15 @@ STATUS_INTERRUPTED: Final = "interrupted"
 
 OBJECT_COLUMNS: Final[tuple[str, ...]] = tuple(f"objects_{name}" for name in CLASS_NAMES)
 
+# Elements the structure model found, per column: the element kinds (summary `structure_elements`) it counts.
+STRUCTURE_COLUMNS: Final[dict[str, tuple[str, ...]]] = {
+    "structure_slabs": ("floor", "ceiling"),
+    "structure_walls": ("wall",),
+    "structure_columns": ("column",),
+    "structure_beams": ("beam",),
+    "structure_grounds": ("ground",),
+}
+
 # (name, type, what); the order is the column order of the file and of the --json rows.
 COLUMNS: Final[tuple[tuple[str, pa.DataType, str], ...]] = (
     ("mission", pa.string(), "folder name under the output folder"),
@@ -67,6 +76,10 @@ COLUMNS: Final[tuple[tuple[str, pa.DataType, str], ...]] = (
     ("poses_kitti", pa.string(), "trajectory, KITTI format"),
     ("summary", pa.string(), "summary.json"),
     ("damage", pa.string(), "damage.json (--damage)"),
+    *(
+        (col, pa.int64(), f"structural elements found ({' and '.join(kinds)}; null: structure model off)")
+        for col, kinds in STRUCTURE_COLUMNS.items()
+    ),
 )
 SCHEMA: Final = pa.schema([pa.field(name, kind, metadata={"doc": doc}) for name, kind, doc in COLUMNS])
 COLUMN_NAMES: Final[tuple[str, ...]] = tuple(name for name, _, _ in COLUMNS)

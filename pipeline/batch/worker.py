@@ -23,6 +23,7 @@ from aftershock.pipeline.batch.site_index import (
     STATUS_FAILED,
     STATUS_INTERRUPTED,
     STATUS_OK,
+    STRUCTURE_COLUMNS,
     empty_row,
 )
 from aftershock.pipeline.config import Config
@@ -190,7 +191,7 @@ def process_mission(task: MissionTask, board: Any = None) -> dict[str, Any]:
             notes.append(f"the log ends in damage: {report.damage}")
         if report.skipped:
             notes.append(f"{len(report.skipped)} messages skipped, the first: {report.skipped[0][1]}")
-        _fill_row(row, result, extra, folder, task.damage)
+        _fill_row(row, result, extra, folder, task.damage, cfg.structure.enabled)
         row["status"] = STATUS_INTERRUPTED if result.summary.interrupted else STATUS_OK
     except KeyboardInterrupt:
         row["status"] = STATUS_INTERRUPTED
@@ -238,7 +239,9 @@ def _node_name() -> str:
     return f"{host}/{node}" if node else host
 
 
-def _fill_row(row: dict[str, Any], result: Any, extra: dict[str, Any], folder: Path, damage: bool) -> None:
+def _fill_row(
+    row: dict[str, Any], result: Any, extra: dict[str, Any], folder: Path, damage: bool, structure: bool
+) -> None:
     from aftershock.sinks.files import DAMAGE_FILE, KITTI_FILE, MAP_FILE, SUMMARY_FILE, TUM_FILE
 
     s = result.summary
@@ -265,6 +268,8 @@ def _fill_row(row: dict[str, Any], result: Any, extra: dict[str, Any], folder: P
     }
     for col in OBJECT_COLUMNS:
         row[col] = int(s.instances_per_class.get(col[len("objects_") :], 0))
+    for col, kinds in STRUCTURE_COLUMNS.items():  # the model off measured nothing: null, never 0
+        row[col] = sum(int(s.structure_elements.get(k, 0)) for k in kinds) if structure else None
     if damage and "damage" in extra:
         d = extra["damage"]
         stories = d.get("stories", [])

@@ -16,7 +16,7 @@ from typing import Any, Final
 
 import typer
 
-from aftershock.pipeline.commands import LABELLER_HELP
+from aftershock.pipeline.commands import CONFIG, LABELLER, OVERRIDES
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import bar, enabled
 
@@ -92,9 +92,9 @@ def batch(
     ),
     address: str | None = typer.Option(None, "--address", help="Join this Ray cluster (HOST:PORT of its head)."),
     damage: bool = typer.Option(False, "--damage", help="Cracks and story drift/tilt on each mission's map."),
-    labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
-    config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
-    overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
+    labeller: str | None = LABELLER,
+    config: Path | None = CONFIG,
+    overrides: list[str] | None = OVERRIDES,
     max_scans: int | None = typer.Option(None, "--max-scans", help="Stop each mission after this many scans."),
     worker_memory: float = typer.Option(
         DEFAULT_WORKER_MEMORY_GB,

@@ -18,7 +18,7 @@ from typing import Any, Final
 import numpy as np
 import typer
 
-from aftershock.pipeline.commands import LABELLER_HELP
+from aftershock.pipeline.commands import CONFIG, END, EVERY, LABELLER, MAX_SCANS, OVERRIDES, START, TOPIC
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.labellers.oracle import ORACLES
 from aftershock.pipeline.mission import build_config, open_scans
@@ -138,14 +138,14 @@ def print_report(rep: dict[str, Any]) -> None:
 
 def evaluate(
     source: str = typer.Argument(..., help="A log with ground truth (class_id/instance_id fields), or sim://…"),
-    labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
-    config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
-    overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
-    topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),
-    start: float | None = typer.Option(None, "--start", help="Seconds from the log start to begin at."),
-    end: float | None = typer.Option(None, "--end", help="Seconds from the log start to stop at."),
-    every: int | None = typer.Option(None, "--every", help="Use every N-th scan."),
-    max_scans: int | None = typer.Option(None, "--max-scans", help="Stop after this many scans."),
+    labeller: str | None = LABELLER,
+    config: Path | None = CONFIG,
+    overrides: list[str] | None = OVERRIDES,
+    topic: str | None = TOPIC,
+    start: float | None = START,
+    end: float | None = END,
+    every: int | None = EVERY,
+    max_scans: int | None = MAX_SCANS,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or notices."),
     as_json: bool = typer.Option(False, "--json", help="Print the scores as JSON."),
     poses: str = typer.Option(

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import typer
 
-from aftershock.pipeline.commands import LABELLER_HELP
+from aftershock.pipeline.commands import CONFIG, END, EVERY, LABELLER, MAX_SCANS, OVERRIDES, START, TOPIC
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.mission import (
     Outputs,
@@ -130,14 +130,14 @@ def run(
     connect: str | None = typer.Option(None, "--connect", help="Stream to a running viewer (rerun+http://…)."),
     mcap_out: Path | None = typer.Option(None, "--mcap-out", help="Write labelled clouds and poses as MCAP."),
     export: Path | None = typer.Option(None, "--export", help="Folder for map.ply, poses and summary.json."),
-    labeller: str | None = typer.Option(None, "--labeller", help=LABELLER_HELP),
-    config: Path | None = typer.Option(None, "--config", help="TOML or JSON config file."),
-    overrides: list[str] | None = typer.Option(None, "--set", help="Config override section.key=value."),
-    topic: str | None = typer.Option(None, "--topic", help="Point-cloud topic (default: the only one)."),
-    start: float | None = typer.Option(None, "--start", help="Seconds from the log start to begin at."),
-    end: float | None = typer.Option(None, "--end", help="Seconds from the log start to stop at."),
-    every: int | None = typer.Option(None, "--every", help="Use every N-th scan."),
-    max_scans: int | None = typer.Option(None, "--max-scans", help="Stop after this many scans."),
+    labeller: str | None = LABELLER,
+    config: Path | None = CONFIG,
+    overrides: list[str] | None = OVERRIDES,
+    topic: str | None = TOPIC,
+    start: float | None = START,
+    end: float | None = END,
+    every: int | None = EVERY,
+    max_scans: int | None = MAX_SCANS,
     refine: bool = typer.Option(False, "--refine", help="Re-segment the final map into objects with LRGNet."),
     damage: bool = typer.Option(False, "--damage", help="Cracks and story drift/tilt on the final map."),
     region: str | None = typer.Option(

@@ -47,10 +47,13 @@ UP_TEXT: Final = {
 CLOCK_SINCE_S: Final = 946_684_800.0  # 2000-01-01: earlier stamps are a file's own count, not the clock (PCD)
 STOREY_PAD_M: Final = 0.3  # a storey's points start this far below its floor slab (the slab's own thickness)
 POSTING_RULE: Final = (
-    "unsafe: collapse or partial collapse found, or a storey's drift ratio or slab tilt at or above the unsafe "
-    "limit; restricted use: a drift ratio or slab tilt at or above the restricted limit, a severe crack on a "
-    "column, wall or slab, or debris blocking an exit; inspected: collapse and leaning assessed and nothing "
-    "found; otherwise restricted use until an engineer has checked what this data could not assess"
+    "unsafe: collapse or partial collapse found, or a storey's drift ratio or slab tilt above the unsafe limit "
+    "by more than its measurement uncertainty; restricted use: a drift ratio or slab tilt above the restricted "
+    "limit by more than its uncertainty, a severe crack on a column, wall or slab, or debris blocking an exit; "
+    "a value whose uncertainty reaches across a limit (value - uncertainty <= limit < value + uncertainty) is "
+    "within measurement uncertainty of the limit: shown, not escalated on alone; inspected: collapse and "
+    "leaning assessed and nothing found; otherwise restricted use until an engineer has checked what this data "
+    "could not assess"
 )
 CITATIONS: Final = {
     "checklist": "ATC-20 Detailed Evaluation Safety Assessment Form (ATC-20-2 addendum, Applied Technology "
@@ -60,6 +63,8 @@ CITATIONS: Final = {
     "drift_limits": "residual drift damage states of FEMA P-58-1 (2012), Appendix C: 0.5 % (1/200) "
     "realignment of the frame required; 1 % (1/100) major realignment, which may not be practical",
     "tilt_limits": "the drift limits' slopes (atan 1/200 = 0.29°, atan 1/100 = 0.57°): a choice of this tool",
+    "tilt_uncertainty": "measured per storey from the data: the standard error of each slab plane's normal over "
+    "the four quadrants of its inliers (pipeline/report/tilt.py), floor and ceiling combined, times 2 (about 95 %)",
     "uncertainty": "the worst drift error per storey through run on 2 simulated frames (simulator.frames "
     "missing-slab seed 5, partial-collapse seed 6, 6 storeys, 10 cm) with up from the lowest slab: 2.6 mm "
     "(measure_drift alone on the simulator's damaged buildings: 1.90 mm, README: Story drift and tilt); with up from "
@@ -106,6 +111,8 @@ class Levels:
     notes: list[str]
     gravity: str | None
     measured_from: str
+    points: np.ndarray | None = None  # the map the slabs were fitted on (their planes' inliers are among them)
+    threshold_m: float = 0.02  # a point lies on a slab plane within this distance (the plane fit's own)
 
 
 def measure_levels(m: MissionData, full: Config) -> Levels:
@@ -118,7 +125,9 @@ def measure_levels(m: MissionData, full: Config) -> Levels:
     if m.cloud is not None and len(m.cloud):
         result = measure_drift(m.cloud.points, full.drift.model_copy(update={"gravity": full.report.drift_gravity}))
         slabs = [story_json(st) for st in result.stories]
-        return Levels(slabs, list(result.notes), result.gravity, "map.ply")
+        return Levels(
+            slabs, list(result.notes), result.gravity, "map.ply", m.cloud.points, full.drift.ransac_threshold_m
+        )
     if m.damage is None:
         return Levels([], ["no map and no damage assessment"], None, "nothing")
     stories = sorted(m.damage.get("stories") or [], key=lambda st: float(st["height_m"]))
@@ -136,13 +145,37 @@ def _angle_deg(p: list[float], q: list[float]) -> float:
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
-def _flag(ratio: float | None, tilt: float | None, cfg: ReportConfig) -> str | None:
+NEAR_LIMIT: Final = "within measurement uncertainty of the limit"
+
+
+def exceeds(value: float | None, uncertainty: float | None, limit: float) -> bool:
+    """Evidence that `value` exceeds `limit`: by more than its uncertainty (none stated: the value alone)."""
+    return value is not None and value - (uncertainty or 0.0) > limit
+
+
+def straddles(value: float | None, uncertainty: float | None, limit: float) -> bool:
+    """`limit` lies within value ± uncertainty, and the value is no evidence of exceeding it."""
+    return value is not None and not exceeds(value, uncertainty, limit) and value + (uncertainty or 0.0) > limit
+
+
+def ratio_uncertainty(s: dict[str, Any]) -> float | None:
+    """A storey's drift uncertainty as a share of its height."""
+    if s.get("uncertainty_mm") is None or not s.get("height_m"):
+        return None
+    return float(s["uncertainty_mm"]) / 1000.0 / float(s["height_m"])
+
+
+def _flag(
+    ratio: float | None, ratio_u: float | None, tilt: float | None, tilt_u: float | None, cfg: ReportConfig
+) -> str | None:
     if ratio is None and tilt is None:
         return None
-    if (ratio or 0) >= cfg.drift_unsafe_ratio or (tilt or 0) >= cfg.tilt_unsafe_deg:
+    if exceeds(ratio, ratio_u, cfg.drift_unsafe_ratio) or exceeds(tilt, tilt_u, cfg.tilt_unsafe_deg):
         return UNSAFE
-    if (ratio or 0) >= cfg.drift_restricted_ratio or (tilt or 0) >= cfg.tilt_restricted_deg:
+    if exceeds(ratio, ratio_u, cfg.drift_restricted_ratio) or exceeds(tilt, tilt_u, cfg.tilt_restricted_deg):
         return RESTRICTED
+    if straddles(ratio, ratio_u, cfg.drift_restricted_ratio) or straddles(tilt, tilt_u, cfg.tilt_restricted_deg):
+        return NEAR_LIMIT
     return "within limits"
 
 
@@ -186,6 +219,7 @@ def storeys(m: MissionData, measured: Levels, cfg: ReportConfig) -> list[dict[st
         drift = float(np.hypot(dx, dy))
         ratio = drift / 1000.0 / height if height > 0 else None
         tilt = _angle_deg(lo["plane"], hi["plane"])
+        tilt_u, tilt_u_reason = _tilt_uncertainty(measured, lo["plane"], hi["plane"])
         # the stories' numbering in the notes is that of the damage report's slabs (lowest first)
         k = int(lo.get("index", i))
         footprints = re.search(rf"story {k}: too few tall walls", notes) is not None
@@ -210,16 +244,36 @@ def storeys(m: MissionData, measured: Levels, cfg: ReportConfig) -> list[dict[st
                 "drift_ratio": _num(ratio, 6),
                 "drift_ratio_text": ratio_text(ratio),
                 "tilt_deg": _num(tilt, 4),
+                "tilt_uncertainty_deg": _num(tilt_u, 4),
                 "uncertainty_mm": uncertainty,
                 "method": method,
-                "flag": _flag(ratio, tilt, cfg),
-                "reason": reason,
+                "flag": _flag(ratio, _ratio_u(uncertainty, height), tilt, tilt_u, cfg),
+                "reason": "; ".join(r for r in (reason, tilt_u_reason) if r) or None,
                 "plane": lo["plane"],
             }
         )
     top = slabs[-1]  # the top slab (a roof, or the ceiling of the last storey seen) starts no storey of its own
     out[-1]["roof_z_m"] = _num(top["height_m"], 3)
     return out
+
+
+def _ratio_u(uncertainty_mm: float | None, height_m: float) -> float | None:
+    return None if uncertainty_mm is None or height_m <= 0 else uncertainty_mm / 1000.0 / height_m
+
+
+def _tilt_uncertainty(measured: Levels, floor: list[float], ceiling: list[float]) -> tuple[float | None, str | None]:
+    """The tilt's expanded uncertainty from the slabs' own points (`tilt.py`), or None and why not."""
+    from aftershock.pipeline.report.tilt import plane_spread, tilt_uncertainty
+
+    if measured.points is None:
+        return (
+            None,
+            f"tilt uncertainty not measured: the slabs come from {measured.measured_from}, without their points",
+        )
+    pts = np.asarray(measured.points, np.float64)
+    return tilt_uncertainty(
+        plane_spread(pts, floor, measured.threshold_m), plane_spread(pts, ceiling, measured.threshold_m)
+    )
 
 
 def _uncertainty(measured: Levels, height_m: float, cfg: ReportConfig) -> float:
@@ -243,6 +297,7 @@ def _unmeasured(index: int, floor_z: float | None, reason: str) -> dict[str, Any
         "drift_ratio": None,
         "drift_ratio_text": None,
         "tilt_deg": None,
+        "tilt_uncertainty_deg": None,
         "uncertainty_mm": None,
         "method": None,
         "flag": None,
@@ -529,10 +584,16 @@ def checklist_and_findings(
         items.append(_item("collapse or partial collapse", NOT_ASSESSABLE, why))
     # Building or storey leaning: drift ratio per storey
     drifted = [s for s in levels if s["drift_ratio"] is not None]
-    over = [s for s in drifted if (s["drift_ratio"] or 0) >= cfg.drift_restricted_ratio]
-    if over:
+    limit_text = f"1/{round(1 / cfg.drift_restricted_ratio)}"
+    exceeded = [s for s in drifted if exceeds(s["drift_ratio"], ratio_uncertainty(s), cfg.drift_restricted_ratio)]
+    close = [s for s in drifted if straddles(s["drift_ratio"], ratio_uncertainty(s), cfg.drift_restricted_ratio)]
+    close_text = "".join(
+        f"; storey {s['index']}: {s['drift_mm']:.1f} ± {_pm(s)} mm = {s['drift_ratio_text']}, {NEAR_LIMIT} {limit_text}"
+        for s in close
+    )
+    if exceeded:
         parts = []
-        for s in over:
+        for s in exceeded:
             n = finding(
                 "drift",
                 f"storey {s['index']}: drift {s['drift_mm']:.1f} mm ({s['drift_ratio_text']} of its height)",
@@ -542,13 +603,16 @@ def checklist_and_findings(
             )
             parts.append(
                 f"storey {s['index']}: drift {s['drift_mm']:.1f} ± {_pm(s)} mm = {s['drift_ratio_text']} of "
-                f"{s['height_m']:.2f} m (limit 1/{round(1 / cfg.drift_restricted_ratio)}; finding {n})"
+                f"{s['height_m']:.2f} m (limit {limit_text} exceeded by more than the uncertainty; finding {n})"
             )
-        items.append(_item("building or storey leaning", FOUND, "; ".join(parts), [_where(m, ENTITY_DRIFT)]))
+        text = "; ".join(parts) + close_text
+        items.append(_item("building or storey leaning", FOUND, text, [_where(m, ENTITY_DRIFT)]))
     elif drifted:
-        parts = [f"storey {s['index']}: {s['drift_mm']:.1f} ± {_pm(s)} mm = {s['drift_ratio_text']}" for s in drifted]
+        below = [s for s in drifted if s not in close]
+        parts = [f"storey {s['index']}: {s['drift_mm']:.1f} ± {_pm(s)} mm = {s['drift_ratio_text']}" for s in below]
         rest = len(levels) - len(drifted)
-        text = "; ".join(parts) + f" (below 1/{round(1 / cfg.drift_restricted_ratio)})"
+        text = "; ".join(parts) + (f" (below {limit_text})" if parts else "") + close_text
+        text = text.removeprefix("; ")
         if rest:
             text += f"; {rest} storey(s) not measured"
         items.append(_item("building or storey leaning", NONE, text, [_where(m, ENTITY_DRIFT)]))
@@ -566,10 +630,11 @@ def checklist_and_findings(
         extra = ""
         tilted: list[dict[str, Any]] = []
         if key == "slabs":
-            tilted = [s for s in levels if s["tilt_deg"] is not None and s["tilt_deg"] >= cfg.tilt_restricted_deg]
+            lim = cfg.tilt_restricted_deg
+            tilted = [s for s in levels if exceeds(s["tilt_deg"], s["tilt_uncertainty_deg"], lim)]
             tilts = [s for s in levels if s["tilt_deg"] is not None]
             if tilts:
-                extra = "; slab tilt " + ", ".join(f"storey {s['index']} {s['tilt_deg']:.2f}°" for s in tilts)
+                extra = "; slab tilt " + ", ".join(_tilt_text(s, lim) for s in tilts)
         if on or tilted:
             parts = []
             for c in on:
@@ -588,7 +653,16 @@ def checklist_and_findings(
                     "tilt", f"storey {s['index']}: slab tilt {s['tilt_deg']:.2f}°", None, s["index"],
                     _where(m, ENTITY_STORIES),
                 )  # fmt: skip
-                parts.append(f"storey {s['index']}: ceiling slab tilted {s['tilt_deg']:.2f}° (finding {n})")
+                parts.append(
+                    f"storey {s['index']}: ceiling slab tilted {_tilt_pm(s)}, above {cfg.tilt_restricted_deg}° by "
+                    f"more than the uncertainty (finding {n})"
+                )
+            lim = cfg.tilt_restricted_deg
+            parts += [
+                "slab tilt " + _tilt_text(s, lim)
+                for s in levels
+                if straddles(s["tilt_deg"], s["tilt_uncertainty_deg"], lim)
+            ]
             where = [_where(m, ENTITY_CRACKS)] if on else [_where(m, ENTITY_STORIES)]
             items.append(_item(item, FOUND, "; ".join(parts), where))
         elif seen == 0 and key != "slabs":
@@ -597,7 +671,12 @@ def checklist_and_findings(
             items.append(_item(item, NOT_ASSESSABLE, f"{seen} seen; cracks: {crk['reason']}"))
         else:
             assessed = "no crack found where assessed" if crk["assessed"] else f"cracks: {crk['reason']}"
-            status = NONE if crk["assessed"] or extra else NOT_ASSESSABLE
+            # a tilt whose uncertainty reaches across the limit settles nothing: with no crack assessment either,
+            # the slabs were not assessable (which does not escalate the posting on its own)
+            unsettled = any(
+                straddles(s["tilt_deg"], s["tilt_uncertainty_deg"], cfg.tilt_restricted_deg) for s in levels
+            )
+            status = NONE if crk["assessed"] or (extra and not unsettled) else NOT_ASSESSABLE
             where = [_where(m, ENTITY_STORIES)] if extra else []
             items.append(_item(item, status, f"{seen} seen; {assessed}{extra}", where))
     # Debris blocking exits
@@ -615,6 +694,19 @@ def checklist_and_findings(
         text = f"no debris within {cfg.exit_clearance_m:.1f} m of the {doors} door points seen"
         items.append(_item("debris blocking exits", NONE, text, [_where(m, ENTITY_MAP)]))
     return items, findings
+
+
+def _tilt_pm(s: dict[str, Any]) -> str:
+    u = s.get("tilt_uncertainty_deg")
+    return f"{s['tilt_deg']:.2f} ± {u:.2f}°" if u is not None else f"{s['tilt_deg']:.2f}° (uncertainty not measured)"
+
+
+def _tilt_text(s: dict[str, Any], limit: float) -> str:
+    """`storey 0 0.36 ± 1.32°`, and when the limit lies inside value ± uncertainty, saying so."""
+    text = f"storey {s['index']} {_tilt_pm(s)}"
+    if straddles(s["tilt_deg"], s.get("tilt_uncertainty_deg"), limit):
+        text += f" ({NEAR_LIMIT} {limit}°)"
+    return text
 
 
 def _pm(s: dict[str, Any]) -> str:

@@ -12,6 +12,7 @@ from aftershock.pipeline.config import Config
 from aftershock.pipeline.report.assess import CITATIONS, assess_mission, worst_posting
 from aftershock.pipeline.report.gather import gather
 from aftershock.pipeline.report.plan import draw_plan
+from aftershock.pipeline.report.tilt import COVERAGE as TILT_COVERAGE
 
 REPORT_VERSION: Final = 1  # report.json's layout; keys are only ever added
 
@@ -58,6 +59,7 @@ def make_report(folder: Path, cfg: Config) -> Report:
             "tilt_restricted_deg": r.tilt_restricted_deg,
             "tilt_unsafe_deg": r.tilt_unsafe_deg,
             "drift_uncertainty_mm": r.drift_uncertainty_mm,
+            "tilt_uncertainty_coverage": TILT_COVERAGE,
             "level_uncertainty_deg": r.level_uncertainty_deg,
             "drift_gravity": r.drift_gravity,
             "collapse_debris_share": r.collapse_debris_share,

@@ -72,6 +72,10 @@ def _storeys(storeys: list[dict[str, Any]]) -> str:
         drift = _v(s["drift_mm"], ".1f", " mm")
         if s["drift_mm"] is not None:
             drift += f" ± {_v(s['uncertainty_mm'], '.1f', ' mm')}" if s["uncertainty_mm"] is not None else " ± ?"
+        tilt = _v(s["tilt_deg"], ".3f", "°")
+        if s["tilt_deg"] is not None:
+            u = s.get("tilt_uncertainty_deg")
+            tilt += f" ± {_v(u, '.3f', '°')}" if u is not None else " ± ?"
         rows.append(
             [
                 str(s["index"]),
@@ -79,7 +83,7 @@ def _storeys(storeys: list[dict[str, Any]]) -> str:
                 _v(s["height_m"], ".2f", " m"),
                 drift,
                 _v(s["drift_ratio_text"]),
-                _v(s["tilt_deg"], ".3f", "°"),
+                tilt,
                 _v(s["flag"]),
                 escape(s["reason"] or ""),
             ]
@@ -204,7 +208,7 @@ def render(report: Report) -> str:
         f"<li>Drift ratio flagged at 1/{round(1 / lim['drift_restricted_ratio'])} (restricted use) and "
         f"1/{round(1 / lim['drift_unsafe_ratio'])} (unsafe): {escape(src['drift_limits'])}.</li>"
         f"<li>Slab tilt flagged at {lim['tilt_restricted_deg']}° and {lim['tilt_unsafe_deg']}°: "
-        f"{escape(src['tilt_limits'])}.</li>"
+        f"{escape(src['tilt_limits'])}. Tilt uncertainty: {escape(src['tilt_uncertainty'])}.</li>"
         f"<li>Drift uncertainty ± {lim['drift_uncertainty_mm']} mm per storey (with up from the map's z, + the "
         f"storey height × tan {lim['level_uncertainty_deg']}°): {escape(src['uncertainty'])}.</li>"
         f"<li>Partial collapse when debris covers {lim['collapse_debris_share']:.0%} of a storey's floor; an exit "

@@ -170,6 +170,7 @@ class StructureModel:
         self.elem = np.full(cap, -1, np.int32)  # element (slab, wall piece, column, beam) the voxel lies on
         self.kind_cls = np.full(cap, UNLABELLED, np.uint16)  # that element's class (UNLABELLED: none)
         self.fused = np.full(cap, UNLABELLED, np.uint16)  # the class the structure gives (UNLABELLED: no say)
+        self.fused_score = np.zeros(cap, np.float32)  # the confidence of that class (see `_fuse`)
         self.hist = np.zeros(_HIST_BINS, np.int64)
         self.hist_base: int | None = None
         self.slabs: list[_Slab] = []
@@ -202,7 +203,7 @@ class StructureModel:
         if n <= len(self.net_cls):
             return
         cap = max(n, 2 * len(self.net_cls))
-        for name in ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused"):
+        for name in ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused", "fused_score"):
             old = getattr(self, name)
             fill = {"net_cls": UNLABELLED, "elem": -1, "kind_cls": UNLABELLED, "fused": UNLABELLED}.get(name, 0)
             arr = np.full(cap, fill, old.dtype)
@@ -254,10 +255,12 @@ class StructureModel:
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
     def apply(self, vmap: VoxelMap) -> None:
-        """Write the fused classes into the map (the network's instance votes rewrite classes every scan)."""
+        """Write the fused classes and their confidence into the map (the network's instance votes rewrite
+        classes and scores every scan)."""
         fused = self.fused[: self.n]
         where = fused != UNLABELLED
         vmap.class_ids[: self.n][where] = fused[where]
+        vmap.scores[: self.n][where] = self.fused_score[: self.n][where]
 
     def _add_rows(self, vmap: VoxelMap, rows: np.ndarray) -> None:
         pos = vmap.positions[rows]
@@ -835,6 +838,10 @@ class StructureModel:
         on = s != UNLABELLED
         keep = on & NON_STRUCTURAL[c] & (self.net_score[rows] >= self.cfg.keep_confidence)
         out = np.where(on & ~keep, s, UNLABELLED).astype(np.uint16)
+        # An element's class is as sure as the network (its probability of that class, known where it is the
+        # network's own class, else 0) or the geometry (the element's support) says: 1 - (1 - p)(1 - g).
+        p = np.where(c == s, self.net_score[rows], 0.0)
+        score = 1.0 - (1.0 - p) * (1.0 - self._support(rows))
         free = ~on
         z = vmap.positions[rows, 2]
         sz = self.sensor_z[rows]
@@ -863,7 +870,29 @@ class StructureModel:
             else:
                 under = np.zeros(len(rows), bool)
             out[free & (c == C.BEAM) & ~under] = C.CLUTTER
+        # A network label the structure rules out: the new class gets at most the probability left over.
+        overruled = free & (out != UNLABELLED)
+        score[overruled] = 1.0 - self.net_score[rows[overruled]]
         self.fused[rows] = out
+        self.fused_score[rows] = np.where(out != UNLABELLED, score, 0.0)
+
+    def _support(self, rows: np.ndarray) -> np.ndarray:
+        """Per row, the geometric support of the element it lies on (0 off any): the element's voxels (a wall's
+        over all its pieces) over the voxels that confirm a slab (`slab_min_voxels`), capped at 1."""
+        elem = self.elem[rows]
+        g = np.zeros(len(rows))
+        if not np.any(elem >= 0):
+            return g
+        owner = self.elem[: self.n]
+        counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1).astype(np.float64)
+        if self.wall_of_piece:  # a wall piece counts its whole wall
+            pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
+            walls = np.fromiter(self.wall_of_piece.values(), np.int64, len(pids))
+            per_wall = np.bincount(walls, weights=counts[pids], minlength=int(walls.max()) + 1)
+            counts[pids] = per_wall[walls]
+        on = elem >= 0
+        g[on] = np.minimum(counts[elem[on]] / self.cfg.slab_min_voxels, 1.0)
+        return g
 
     def _near_wall(self, pos: np.ndarray, reach_m: float = 0.15) -> np.ndarray:
         """Whether points lie within `reach_m` of a confirmed wall piece's plane, beside or just past it."""

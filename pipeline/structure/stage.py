@@ -20,6 +20,8 @@ def structure_frame(frame: Frame, vmap: VoxelMap, model: StructureModel) -> Fram
     kept = frame.map_rows
     if frame.labels is not None and kept is not None and len(kept.rows):
         frame.labels.class_ids[kept.points] = vmap.class_ids[kept.rows]
+        if frame.labels.scores is not None:
+            frame.labels.scores[kept.points] = vmap.scores[kept.rows]
     return frame
 
 

@@ -17,7 +17,7 @@ import os
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import pytest
@@ -87,6 +87,17 @@ _HEADER: Final = (
 )
 
 
+def _finish(fig: Any, ax: Any, name: str, **labels: Any) -> None:
+    """Label the axes, add the legend and write the figure to docs/NAME."""
+    import matplotlib.pyplot as plt
+
+    ax.set(**labels)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(DOCS / name, dpi=120)
+    plt.close(fig)
+
+
 def test_tables(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
     cfg = CrackConfig()
     print(
@@ -152,11 +163,15 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
         print(f"  {name}: " + " ".join(f"{r * 1000:g}mm {v:.2f}" for r, v in zip(spacings, f1, strict=True)))
         ax.plot(np.array(spacings) * 1000, f1, marker="o", label=name)
     ax.set_xscale("log")
-    ax.set(xlabel="grid spacing (mm)", ylabel="F1", title="F1 against point spacing", ylim=(0, 1))
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(DOCS / "cracks_spacing.png", dpi=120)
-    plt.close(fig)
+    _finish(
+        fig,
+        ax,
+        "cracks_spacing.png",
+        xlabel="grid spacing (mm)",
+        ylabel="F1",
+        title="F1 against point spacing",
+        ylim=(0, 1),
+    )
 
     print("\nF1 against the share of crack points (crack points dropped at random):")
     fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -174,11 +189,15 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
             f1.append(find_cracks(cloud.select(keep), cfg, mask[keep]).scores.f1)  # type: ignore[union-attr]
         print(f"  {name}: " + " ".join(f"{s:.3f} {v:.2f}" for s, v in zip(shares, f1, strict=True)))
         ax.plot(np.array(shares) * 100, f1, marker="o", label=name)
-    ax.set(xlabel="crack points (%)", ylabel="F1", title="F1 against the share of crack points", ylim=(0, 1))
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(DOCS / "cracks_share.png", dpi=120)
-    plt.close(fig)
+    _finish(
+        fig,
+        ax,
+        "cracks_share.png",
+        xlabel="crack points (%)",
+        ylabel="F1",
+        title="F1 against the share of crack points",
+        ylim=(0, 1),
+    )
 
     from aftershock.sources.simulator.cracks import cracked_element
 
@@ -192,11 +211,15 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
             f1.append(find_cracks(cloud, cfg, mask).scores.f1)  # type: ignore[union-attr]
         print(f"  {kind}: " + " ".join(f"{w:.1f}mm {v:.2f}" for w, v in zip(widths, f1, strict=True)))
         ax.scatter(widths, f1, label=kind)
-    ax.set(xlabel="mean crack width of the element (mm)", ylabel="F1", title="F1 against crack width", ylim=(0, 1))
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(DOCS / "cracks_width.png", dpi=120)
-    plt.close(fig)
+    _finish(
+        fig,
+        ax,
+        "cracks_width.png",
+        xlabel="mean crack width of the element (mm)",
+        ylabel="F1",
+        title="F1 against crack width",
+        ylim=(0, 1),
+    )
 
 
 def test_unseen_simulated_elements() -> None:

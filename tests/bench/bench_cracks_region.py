@@ -37,6 +37,7 @@ from cracks_common import (
     print_simulated_f1,
     print_speed_against_old_default,
     sim_spacing,
+    usable_candidates,
 )
 
 from aftershock.pipeline.cloud_io import read_cloud
@@ -116,14 +117,7 @@ def _far(r: CrackResult) -> float:
 def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
     t_start = time.perf_counter()
     highs = _calibrate()
-    print(
-        "\n\n#30 damaged-region detector. Seed score calibrated on simulated intact elements (with marks), "
-        f"{len(CALIBRATION)} elements, at most {CALIBRATION_MAX * 100:.1f} % flagged:"
-    )
-    for name, h in highs.items():
-        print(f"  {name:40s} region_high {h if h is not None else 'none on the grid'}")
-    usable = [n for n, h in highs.items() if h is not None]
-    assert usable, "no candidate meets the intact calibration"
+    usable = usable_candidates("damaged-region detector", "region_high", highs, len(CALIBRATION), CALIBRATION_MAX)
     evaluated = {n: evaluated_cloud(c, m) for n, (c, m) in real.items()}
     f1: dict[str, dict[str, float]] = {n: {} for n in usable}
     for el, (part, truth, spacing) in evaluated.items():

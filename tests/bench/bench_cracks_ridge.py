@@ -35,6 +35,7 @@ from cracks_common import (
     print_simulated_f1,
     print_speed_against_old_default,
     sim_spacing,
+    usable_candidates,
 )
 
 from aftershock.pipeline.cloud_io import read_cloud
@@ -102,14 +103,7 @@ def _calibrate() -> dict[str, float | None]:
 def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
     t_start = time.perf_counter()
     highs = _calibrate()
-    print(
-        "\n\n#30 orthoimage ridge detector. Seed score calibrated on simulated intact elements (with marks), "
-        f"{len(CALIBRATION)} elements, at most {CALIBRATION_MAX * 100:.1f} % flagged:"
-    )
-    for name, h in highs.items():
-        print(f"  {name:32s} ridge_high {h if h is not None else 'none on the grid'}")
-    usable = [n for n, h in highs.items() if h is not None]
-    assert usable, "no candidate meets the intact calibration"
+    usable = usable_candidates("orthoimage ridge detector", "ridge_high", highs, len(CALIBRATION), CALIBRATION_MAX)
     # F1 of every usable candidate on every real element (points of the evaluated cloud, ridge mask as is)
     f1: dict[str, dict[str, float]] = {}
     evaluated = {n: evaluated_cloud(c, m) for n, (c, m) in real.items()}

@@ -89,3 +89,20 @@ def print_speed_against_old_default(
         f"\nSpeed on column2 ({len(cloud)} points): {name} {new_s:.2f} s, old default {old_s:.2f} s "
         f"(ratio {new_s / old_s:.2f}) on this shared machine; whole benchmark {time.perf_counter() - t_start:.0f} s"
     )
+
+
+def usable_candidates(
+    detector: str, setting: str, highs: dict[str, float | None], elements: int, most: float
+) -> list[str]:
+    """Print each candidate's seed score calibrated on `elements` simulated intact elements (at most `most` of
+    their points flagged) and return the candidates that met it."""
+    print(
+        f"\n\n#30 {detector}. Seed score calibrated on simulated intact elements (with marks), "
+        f"{elements} elements, at most {most * 100:.1f} % flagged:"
+    )
+    width = max((len(n) for n in highs), default=0)
+    for name, h in highs.items():
+        print(f"  {name:{width}s} {setting} {h if h is not None else 'none on the grid'}")
+    usable = [n for n, h in highs.items() if h is not None]
+    assert usable, "no candidate meets the intact calibration"
+    return usable
