@@ -4,6 +4,11 @@ the file cannot be written (a full disk, a writer that stopped).
 Rerun's file writer cannot recover from a full disk: its thread dies and every later flush, disconnect and even
 the interpreter's exit wait for ever. So the recording stops while MIN_FREE_BYTES are left (a batch in flight
 plus a scan's layers fit), and a flush that makes no progress for FLUSH_STALL_S is given up.
+
+The file is written as `NAME.part` beside NAME and renamed over NAME when the recording is closed complete: at
+the end of a run, after Ctrl-C/SIGTERM (the stream ends and closes its sinks), and when it was stopped while the
+disk still had room. A writer that failed (the disk filled at once, a stall) leaves NAME as it was and the cut
+file as `NAME.part`, which Rerun reads up to the cut; so does a SIGKILL (pipeline/outputs.py).
 """
 
 from __future__ import annotations
@@ -19,8 +24,8 @@ from urllib.parse import urlsplit
 import rerun as rr
 import rerun.blueprint as rrb
 
-from aftershock.pipeline.cloud_io import check_output
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.outputs import check_output, commit, not_regular, part_path
 from aftershock.sinks.rrd_compact import compact
 
 SPAWN_PORT: Final = 9876
@@ -75,11 +80,13 @@ class RecordingOutput:
         if save is None and not spawn and connect is None:
             raise ValueError("RerunSink needs at least one of save, spawn or connect")
         self.path = check_output(save, force) if save is not None else None
+        self.part = part_path(self.path) if self.path is not None else None  # where the file grows until closed
         self.spawn = spawn
         self.compact_above_mb = compact_above_mb
         self._sinks: list[rr.FileSink | rr.GrpcSink] = []
-        if self.path is not None:
-            self._sinks.append(rr.FileSink(self.path))
+        if self.path is not None and self.part is not None:
+            self._check_part()
+            self._sinks.append(rr.FileSink(self.part))
         self.viewer_url = connect or f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"
         if connect is not None:
             try:
@@ -111,6 +118,9 @@ class RecordingOutput:
     def start(self, blueprint: rrb.Blueprint) -> None:
         """Make the file, spawn the viewer if asked (the one already there is reused) and connect them."""
         self.started = True
+        self._check_part()  # something may have been put there since the checks
+        if self.part is not None and (self.part.is_symlink() or self.part.exists()):
+            self.part.unlink()  # a killed run's leftover: a fresh file, never written through a link
         if self.spawn:  # a viewer of this environment on 127.0.0.1
             from aftershock.sinks.rerun_viewer import start_viewer
 
@@ -118,20 +128,36 @@ class RecordingOutput:
         self.rec.set_sinks(*self._sinks, default_blueprint=blueprint)
 
     def close(self) -> None:
-        """Flush and disconnect; a large file is compacted when the disk has room for it. OutputError when the
-        file could not be finished or the viewer not reached."""
+        """Flush and disconnect, then put the finished file in place (a large one compacted first when the disk
+        has room for it). OutputError when the file could not be finished (it stays `NAME.part`, NAME as it
+        was) or the viewer not reached (the file is still put in place)."""
         self.closed = True
         try:
             self._flush()
         except RuntimeError as exc:  # a viewer that went away or never came: the file is still finished
             self.rec.disconnect()
+            self._put_in_place()
             raise OutputError(f"the Rerun viewer could not be reached ({exc})", self.viewer_url) from None
         self.rec.disconnect()
-        if self.path is not None and self.path.exists():
-            size = self.path.stat().st_size
-            free = self.free_bytes()
-            if size > self.compact_above_mb * 1e6 and (free is None or free > size + MIN_FREE_BYTES):
-                compact(self.path)
+        self._put_in_place()
+
+    def _put_in_place(self) -> None:
+        """The finished `NAME.part`, compacted when large and the disk has room, renamed over NAME."""
+        if self.path is None or self.part is None or not self.part.is_file():
+            return  # never started: nothing was made
+        size = self.part.stat().st_size
+        free = self.free_bytes()
+        if size > self.compact_above_mb * 1e6 and (free is None or free > size + MIN_FREE_BYTES):
+            compact(self.part)
+        try:
+            commit(self.part, self.path)
+        except OSError as exc:
+            raise OutputError(f"cannot put the recording in place: {exc.strerror or exc}", self.path) from None
+
+    def _check_part(self) -> None:
+        what = not_regular(self.part) if self.part is not None else None
+        if what is not None and self.part is not None:
+            raise OutputError(f"{self.part.name} beside it is {what}; remove it", self.path)
 
     # ------------------------------------------------------------------------------------------ errors
 
@@ -159,12 +185,13 @@ class RecordingOutput:
 
     @property
     def file_made(self) -> bool:
-        return self.path is not None and self.path.exists()  # the file is made when the sinks are set
+        """Whether this run's file exists yet (it is made when the sinks are set; an older NAME does not count)."""
+        return self.started and self.part is not None and self.part.exists()
 
     def _flush(self) -> None:
         """Flush, giving up with OutputError when the file writer died (it says so, or the file stops growing for
         FLUSH_STALL_S); RuntimeError from a viewer that cannot be reached."""
-        if self.path is None:
+        if self.part is None:
             self.rec.flush()
             return
         last_size, last_change = -1, time.monotonic()
@@ -179,7 +206,7 @@ class RecordingOutput:
                     raise error from None
                 if "timed out" not in str(exc):
                     raise
-            size = self.path.stat().st_size if self.path.exists() else 0
+            size = self.part.stat().st_size if self.part.exists() else 0
             now = time.monotonic()
             if size != last_size:
                 last_size, last_change = size, now
@@ -197,7 +224,13 @@ class RecordingOutput:
         return "the disk is full" if free is not None and free < MIN_FREE_BYTES else _WRITE_FAILED
 
     def _write_failed(self, why: str, process_stuck: bool = False) -> OutputError:
-        size = self.path.stat().st_size if self.path is not None and self.path.exists() else 0
+        """The error of a writer that failed: its cut file stays `NAME.part` (never under NAME, which stays as it
+        was), for Rerun reads it up to the cut."""
+        part = self.part
+        size = part.stat().st_size if part is not None and part.exists() else 0
+        where = f"left as {part.name}" if part is not None else "left"
         return OutputError(
-            f"{why}; the recording stopped at {size} bytes, Rerun reads it up to there", self.path, process_stuck
+            f"{why}; the recording stopped at {size} bytes, {where}, which Rerun reads up to there",
+            self.path,
+            process_stuck,
         )

@@ -102,7 +102,8 @@ def test_batch_on_a_two_node_cluster(cluster: str, lidar_dir: Path, tmp_path: Pa
         assert len((folder / "poses_tum.txt").read_text().splitlines()) == r["scans"]
         assert len((folder / "poses_kitti.txt").read_text().splitlines()) == r["scans"]
         assert len(read_cloud(folder / "map.ply")) > 0
-        rec = read_rrd(folder / "recording.rrd")
+        rec = read_rrd(folder / "recording.rrd")  # the recording sink of `run`: grown as .part, then renamed
+        assert not list(folder.glob("*.part"))
         assert rec.under("world/map") and len(rec.times(L.ROBOT, "Transform3D:translation", "scan")) == r["scans"]
         assert Path(r["recording"]) == folder / "recording.rrd" and Path(r["map"]) == folder / "map.ply"
         assert completed_row(folder, r["source"], r["config_hash"]) is not None

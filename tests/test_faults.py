@@ -85,7 +85,7 @@ def test_a_disk_too_full_for_a_recording_refuses_at_once_and_leaves_nothing(tmp_
         done = cli_proc(["run", str(log), "--save", str(disk / "x.rrd"), *RG, "-q"], timeout=60)
         assert done.returncode == 2
         assert_one_line(done.stderr, disk / "x.rrd", "disk is nearly full")
-        assert not (disk / "x.rrd").exists()
+        assert not (disk / "x.rrd").exists() and not (disk / "x.rrd.part").exists()
 
 
 @needs_root
@@ -99,13 +99,14 @@ def test_a_disk_filling_mid_run_stops_the_recording_readable_and_finishes_the_ot
         cmd += ["--mcap-out", str(tmp_path / "o.mcap"), "--export", str(tmp_path / "exp"), *RG, "-q"]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (out.exists() and out.stat().st_size > 200_000):
+        part = disk / "x.rrd.part"  # the recording grows beside its name until it is closed
+        while time.monotonic() < deadline and not (part.exists() and part.stat().st_size > 200_000):
             time.sleep(0.05)
         fill_disk(disk, 20 * 2**20)  # below the room a recording keeps: stopped at the next scan
         _, err = proc.communicate(timeout=90)
         assert proc.returncode == 2, err
         assert_one_line(err, out, "disk is nearly full", "stays readable")
-        assert rrd_verify(out).returncode == 0
+        assert rrd_verify(out).returncode == 0 and not part.exists()  # closed complete: put in place
         scans = len(read_rrd(out).times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE))
     assert 0 < scans < 400
     summary = json.loads((tmp_path / "exp" / "summary.json").read_text())
@@ -117,21 +118,31 @@ def test_a_disk_filling_mid_run_stops_the_recording_readable_and_finishes_the_ot
 
 @needs_root
 def test_a_disk_full_at_once_ends_the_run_in_seconds_with_what_was_written_readable(tmp_path: Path) -> None:
-    """The disk fills in one go (another program): Rerun's writer thread dies; the run still ends, one line."""
+    """The disk fills in one go (another program): Rerun's writer thread dies; the run still ends, one line. The
+    cut file stays `x.rrd.part` (Rerun reads it up to the cut) and the recording already there, which --force
+    would have replaced, is left as it was."""
     log = write_log(tmp_path / "log.mcap", 400, points=3000)
     with small_disk(tmp_path / "disk", "64m") as disk:
         out = disk / "x.rrd"
+        out.write_bytes(b"an older recording")
         cmd = [sys.executable, "-m", "aftershock.pipeline", "run", str(log), "--save", str(out), *RG, "-q"]
+        cmd.append("--force")
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (out.exists() and out.stat().st_size > 200_000):
+        part = disk / "x.rrd.part"  # the recording grows beside its name until it is closed
+        while time.monotonic() < deadline and not (part.exists() and part.stat().st_size > 200_000):
             time.sleep(0.05)
         fill_disk(disk, 0)
         _, err = proc.communicate(timeout=90)
         assert proc.returncode == 2, err
         line = assert_one_line(err, out)
         assert "disk" in line
-        listing = rrd_print(out)
+        if "stays readable" in line:  # the room check came first and the writer still finished the file
+            assert rrd_verify(out).returncode == 0 and not part.exists()
+            return
+        assert "left as x.rrd.part" in line
+        assert out.read_bytes() == b"an older recording"  # a cut file never takes the final name
+        listing = rrd_print(part)
         # Rerun reads the layers of the scans written before the disk filled (which ones made it depends on timing)
         assert listing.returncode == 0 and ("/world/robot" in listing.stdout or "/world/scan/" in listing.stdout)
 
@@ -299,7 +310,7 @@ def test_sigterm_stops_like_ctrl_c_with_every_output_finished(sig, code, long_lo
     assert "Traceback" not in stderr and "interrupted after" in stdout
     scans = int(stdout.split("interrupted after ")[1].split()[0])
     assert 0 < scans < 400
-    assert rrd_verify(out).returncode == 0
+    assert rrd_verify(out).returncode == 0 and not out.with_name("x.rrd.part").exists()
     info = json.loads(cli_proc(["info", str(tmp_path / "o.mcap"), "--json"]).stdout)
     assert info["damage"] is None and info["point_clouds"][0]["scans"] in (scans, scans + 1)
     summary = json.loads((tmp_path / "exp" / "summary.json").read_text())
@@ -308,8 +319,9 @@ def test_sigterm_stops_like_ctrl_c_with_every_output_finished(sig, code, long_lo
 
 
 def test_sigkill_loses_only_the_scan_in_flight(long_log: Path, tmp_path: Path) -> None:
-    """SIGKILL cannot be caught: the pose files are flushed with each scan, the MCAP reads up to the cut; both
-    are left under their `.part` names (renamed only when a run ends), so nothing looks finished that is not."""
+    """SIGKILL cannot be caught: the pose files are flushed with each scan, the MCAP and the recording read up to
+    the cut; all are left under their `.part` names (renamed only when a run ends), so nothing looks finished that
+    is not."""
     proc, out = _start_run(long_log, tmp_path)
     time.sleep(3.0)  # Rerun batches a second of layers before writing them: a kill loses at most that
     proc.kill()
@@ -324,7 +336,8 @@ def test_sigkill_loses_only_the_scan_in_flight(long_log: Path, tmp_path: Path) -
     written = json.loads(info.stdout)["point_clouds"][0]["scans"]
     # MCAP chunks of a few scans are buffered; the poses lag the scans by at most the one in flight
     assert written <= len(tum) + 1
-    listing = rrd_print(out)
+    assert not out.exists()
+    listing = rrd_print(out.with_name("x.rrd.part"))
     assert "/world/scan/labels" in listing.stdout
 
 
@@ -571,9 +584,10 @@ def test_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
     real_flush = sink.rec.flush
     monkeypatch.setattr(sink.rec, "flush", timed_out)
     t0 = time.monotonic()
-    with pytest.raises(OutputError, match="recording stopped at") as caught:
+    with pytest.raises(OutputError, match=r"recording stopped at .* left as x\.rrd\.part") as caught:
         sink.close()
     assert caught.value.process_stuck and time.monotonic() - t0 < 5
+    assert not out.exists() and out.with_name("x.rrd.part").exists()  # never under its name
     monkeypatch.setattr(sink.rec, "flush", real_flush)
     sink.rec.flush()
     sink.rec.disconnect()

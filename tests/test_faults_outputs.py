@@ -3,7 +3,9 @@
 An output path that is a device, a named pipe, a socket or a folder is refused with or without --force (as root,
 `--out /dev/null --force` must leave the system's /dev/null a device); where no file can be made (/proc, a name
 over 255 bytes) is one line before any work; an export folder written by one command is refused to a second,
-which names the first's PID, and a lock left by a process that died is taken over.
+which names the first's PID, and a lock left by a process that died is taken over. The Rerun recording of `run
+--save` grows as `NAME.part` and takes its name only when it is closed complete (also after Ctrl-C); a refused
+or failed run leaves the recording already there as it was.
 """
 
 from __future__ import annotations
@@ -14,17 +16,21 @@ import socket
 import stat
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from faults_data import write_log
+from faults_data import MALFORMED, write_log
 from faults_hostile import ENV
+from fixtures import interruptible
+from rrd_read import read_rrd, rrd_verify
 
 from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.outputs import LOCK_FILE
 from aftershock.pipeline.types import LabelledCloud
+from aftershock.sinks import rerun_blueprint as L
 
 RG = ("--labeller", "region-growing")
 
@@ -166,3 +172,54 @@ def test_two_outputs_on_one_file_or_an_output_on_an_input_are_refused(log: Path,
         assert code == 2
         one_error_line(err, target, "is the input")
     assert log.read_bytes() == before
+
+
+def _scans_in(recording: Path) -> int:
+    return len(read_rrd(recording).times(L.LABELS, "Points3D:class_ids", L.SCAN_TIMELINE))
+
+
+def test_a_recording_takes_its_name_when_complete_and_one_there_is_left_when_the_run_is_refused_or_fails(
+    log: Path, tmp_path: Path, capsys
+) -> None:
+    out = tmp_path / "x.rrd"
+    part = tmp_path / "x.rrd.part"
+    code, _, err = cli(["run", str(log), *RG, "-q", "--save", str(out)], capsys)
+    assert code == 0, err
+    assert rrd_verify(out).returncode == 0 and not part.exists()
+    assert _scans_in(out) == 6
+    kept = out.read_bytes()
+    code, _, err = cli(["run", str(log), *RG, "-q", "--save", str(out)], capsys)  # refused: it exists
+    assert code == 2
+    one_error_line(err, out, "already exists")
+    os.mkfifo(part)  # something not ours where the recording would grow: refused, --force or not
+    code, _, err = cli(["run", str(log), *RG, "-q", "--save", str(out), "--force"], capsys)
+    assert code == 2
+    one_error_line(err, out, "x.rrd.part beside it is a named pipe")
+    assert stat.S_ISFIFO(os.stat(part).st_mode)
+    part.unlink()
+    bad = write_log(tmp_path / "bad.mcap", 4, bad_clouds=dict.fromkeys(range(4), MALFORMED["point_step 0"]))
+    code, _, err = cli(["run", str(bad), *RG, "-q", "--save", str(out), "--force"], capsys)  # fails: no scan
+    assert code == 2
+    one_error_line(err, bad)
+    assert out.read_bytes() == kept and not part.exists()
+
+
+def test_ctrl_c_mid_run_leaves_the_recording_up_to_there_under_its_name(tmp_path: Path) -> None:
+    log = write_log(tmp_path / "long.mcap", 400, points=3000)
+    out = tmp_path / "x.rrd"
+    part = tmp_path / "x.rrd.part"
+    cmd = [sys.executable, "-m", "aftershock.pipeline", "run", str(log), *RG, "--save", str(out)]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, preexec_fn=interruptible
+    )
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline and not (part.exists() and part.stat().st_size > 300_000):
+        time.sleep(0.05)  # the recording grows beside its name: a few seconds of scans
+    assert part.exists() and not out.exists(), "the run never started writing"
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=90)
+    assert proc.returncode == 130, stderr
+    assert "interrupted after" in stdout and "Traceback" not in stderr
+    assert not part.exists()
+    assert rrd_verify(out).returncode == 0
+    assert 0 < _scans_in(out) < 400
