@@ -19,35 +19,25 @@ import sys
 import time
 from pathlib import Path
 
+import cli_errors
 import numpy as np
 import pytest
+from cli_errors import RG, cli
 from faults_data import MALFORMED, write_log
 from faults_hostile import ENV
 from fixtures import interruptible
 from rrd_read import read_rrd, rrd_verify
 
-from aftershock.pipeline.cli import main
 from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.outputs import LOCK_FILE
 from aftershock.pipeline.types import LabelledCloud
 from aftershock.sinks import rerun_blueprint as L
 
-RG = ("--labeller", "region-growing")
-
-
-def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(args)
-    out, err = capsys.readouterr()
-    return code, out, err
-
 
 def one_error_line(err: str, *names: object) -> str:
-    assert "Traceback" not in err and "\x1b" not in err, err
-    last = err.strip().splitlines()[-1]
-    assert last.startswith("aftershock: error:") and err.count("aftershock: error:") == 1, err
-    for name in names:
-        assert str(name) in last, (name, last)
-    return last
+    """The one error line, and the error's prefix nowhere else in stderr."""
+    assert err.count(cli_errors.PREFIX) == 1, err
+    return cli_errors.one_error_line(err, *names)
 
 
 @pytest.fixture(scope="module")
