@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import base64
 import os
-import resource
+import signal
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -133,41 +134,62 @@ class Finished:
     peak_rss_mb: float  # the child's own peak resident memory (getrusage of that child)
 
 
+# The child is started by a small launcher that forks it and reports its rusage: Linux counts the RSS a process had
+# when it was forked into its child's ru_maxrss, so a child forked from pytest itself would carry pytest's size.
+_LAUNCHER: Final = """
+import os, resource, signal, sys
+limit, report, argv = int(sys.argv[1]), sys.argv[2], sys.argv[3:]
+pid = os.fork()
+if pid == 0:
+    if limit:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    os.execv(argv[0], argv)
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+_, status, usage = os.wait4(pid, 0)
+with open(report, "w") as f:
+    f.write(str(usage.ru_maxrss))
+code = os.waitstatus_to_exitcode(status)
+if code < 0:
+    signal.signal(-code, signal.SIG_DFL)
+    os.kill(os.getpid(), -code)
+sys.exit(code)
+"""
+
+
 def cli_measured(args: list[str], *, address_space: int | None = None, timeout: float = 120) -> Finished:
     """The command line in a child process, under an address-space limit (RLIMIT_AS) if given, with its own peak
-    RSS from wait4."""
-    cmd = [sys.executable, "-m", "aftershock.pipeline", *args]
+    RSS from wait4 (taken by a launcher, see above)."""
+    with tempfile.NamedTemporaryFile("r", suffix=".maxrss") as report:
+        cmd = [sys.executable, "-c", _LAUNCHER, str(address_space or 0), report.name]
+        cmd += [sys.executable, "-m", "aftershock.pipeline", *args]
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, start_new_session=True
+        )
+        streams: dict[str, str] = {}
 
-    def limit() -> None:  # what `prlimit --as` does (util-linux's prlimit itself crashes under --as on some kernels)
-        if address_space is not None:
-            resource.setrlimit(resource.RLIMIT_AS, (address_space, address_space))
+        def drain(name: str) -> None:
+            streams[name] = getattr(proc, name).read()
 
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, preexec_fn=limit)
-    streams: dict[str, str] = {}
+        readers = [threading.Thread(target=drain, args=(n,), daemon=True) for n in ("stdout", "stderr")]
+        for t in readers:
+            t.start()
+        timed_out: list[bool] = []
 
-    def drain(name: str) -> None:
-        streams[name] = getattr(proc, name).read()
+        def kill() -> None:
+            timed_out.append(True)
+            os.killpg(proc.pid, signal.SIGKILL)  # the launcher and the command it started
 
-    readers = [threading.Thread(target=drain, args=(n,), daemon=True) for n in ("stdout", "stderr")]
-    for t in readers:
-        t.start()
-    timed_out: list[bool] = []
-
-    def kill() -> None:
-        timed_out.append(True)
-        proc.kill()
-
-    killer = threading.Timer(timeout, kill)
-    killer.start()
-    try:
-        _, status, usage = os.wait4(proc.pid, 0)  # reaped here, so the child's own rusage comes with it
-    finally:
-        killer.cancel()
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    for t in readers:
-        t.join(10)
-    assert not timed_out, f"{args} did not end in {timeout} s: {streams.get('stderr', '')[-2000:]}"
-    return Finished(proc.returncode, streams.get("stdout", ""), streams.get("stderr", ""), usage.ru_maxrss / 1024)
+        killer = threading.Timer(timeout, kill)
+        killer.start()
+        try:
+            proc.wait()
+        finally:
+            killer.cancel()
+        for t in readers:
+            t.join(10)
+        assert not timed_out, f"{args} did not end in {timeout} s: {streams.get('stderr', '')[-2000:]}"
+        maxrss_kb = int(report.read() or 0)
+    return Finished(proc.returncode, streams.get("stdout", ""), streams.get("stderr", ""), maxrss_kb / 1024)
 
 
 def repoint_chunk_index(src: Path, dst: Path, chunk: int, to: int) -> Path:
