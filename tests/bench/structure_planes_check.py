@@ -1,7 +1,7 @@
 """Agreement of labels with planes found without the labeller, on exported maps of the real logs (issue #28's
 measure; `make bench-real` is the project's benchmark of it, this is the structure model's quick check).
 
-    python tests/structure_planes_check.py EXPORTS   # EXPORTS/<log>/map.ply and poses_tum.txt per real log
+    python tests/bench/structure_planes_check.py EXPORTS   # EXPORTS/<log>/map.ply and poses_tum.txt per real log
 
 Planes by RANSAC (open3d, 5 cm, at least 2 % of the map, the largest connected piece of each): the lowest large
 horizontal plane below the sensor is floor (ground outdoors), the highest above it ceiling, vertical planes at least

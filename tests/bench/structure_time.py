@@ -1,7 +1,7 @@
 """Where the structure stage's time goes: the StructureModel's methods wrapped with timers (the end-of-run
 `finish` left out), then one `aftershock` command in this process; prints ms a scan per method.
 
-    python tests/structure_time.py run "sim://disaster?seed=900&scans=150&sensor=vlp16" --export DIR --json
+    python tests/bench/structure_time.py run "sim://disaster?seed=900&scans=150&sensor=vlp16" --export DIR --json
 """
 
 from __future__ import annotations
