@@ -269,3 +269,75 @@ def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> No
     rec = read_rrd(rrd)
     assert {"world/structure/floors", "world/structure/walls"} <= rec.under("world/structure")
     assert any("LineStrips3D:strips" in c for c in rec.components("world/structure/walls"))
+
+
+def _box_faces(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float) -> np.ndarray:
+    """The four vertical faces and the top of a box (furniture)."""
+    faces = []
+    for fixed, (lo, hi), along_x in (
+        (y0, (x0, x1), True),
+        (y1, (x0, x1), True),
+        (x0, (y0, y1), False),
+        (x1, (y0, y1), False),
+    ):
+        u, z = _grid(lo, hi, z0, z1)
+        faces.append(np.c_[u, np.full_like(u, fixed), z] if along_x else np.c_[np.full_like(u, fixed), u, z])
+    x, y = _grid(x0, x1, y0, y1)
+    faces.append(np.c_[x, y, np.full_like(x, z1)])
+    return np.concatenate(faces)
+
+
+def test_a_bookcase_standing_in_a_room_is_not_a_wall_and_the_ceiling_keeps_its_edge() -> None:
+    # a 2 m tall, 3 m wide bookcase 1.5 m in front of the wall at y = 0: the ceiling is seen over it on both sides
+    pts, truth = room(x1=10.0, y1=8.0)
+    case = _box_faces(5.0, 8.0, 1.5, 1.9, 0.05, 2.0)
+    pts = np.concatenate([pts, case])
+    truth = np.r_[truth, np.full(len(case), C.BOOKCASE, np.uint16)]
+    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    got = vmap.class_ids[rows]
+    assert np.mean(got[truth == C.BOOKCASE] == C.WALL) < 0.05
+    assert np.mean(got[truth == C.WALL] == C.WALL) > 0.9
+    walls = [e for e in model.elements(vmap) if e.kind is Kind.WALL]
+    assert not any(e.lo[1] > 1.0 and e.hi[1] < 2.5 for e in walls)  # no wall outline at the bookcase
+    assert np.mean(got[truth == C.CEILING] == C.CEILING) > 0.98  # the wall heads leave the ceiling its edge
+
+
+def test_desks_under_a_row_of_lamps_are_no_wall() -> None:
+    # desks (0.75 m) and lamps hanging 0.4 m under the ceiling on one line: a vertical plane through both holds
+    # many voxels, but the storey's middle between them is empty
+    pts, truth = room(x1=10.0, y1=8.0)
+    parts = [_box_faces(x, x + 1.4, 1.6, 2.4, 0.05, 0.75) for x in (1.0, 2.6, 4.2, 5.8, 7.4)]
+    parts += [_box_faces(x, x + 1.2, 1.9, 2.1, 2.5, 2.6) for x in (1.0, 2.6, 4.2, 5.8, 7.4)]
+    clutter = np.concatenate(parts)
+    pts = np.concatenate([pts, clutter])
+    truth = np.r_[truth, np.full(len(clutter), C.TABLE, np.uint16)]
+    vmap, rows = _map(pts, np.full(len(pts), C.TABLE, np.uint16))
+    model = _run(vmap)
+    got = vmap.class_ids[rows]
+    assert np.mean(got[truth == C.TABLE] == C.WALL) < 0.05
+    assert not any(e.kind is Kind.WALL and e.lo[1] > 1.0 and e.hi[1] < 3.0 for e in model.elements(vmap))
+
+
+def test_a_facade_seen_in_pieces_is_one_wall() -> None:
+    # outdoors: a 14 m long, 7 m tall facade with two rows of windows (no returns from glass) and a recessed
+    # shop front below, standing on sloping ground: one wall outline, and its voxels wall up to its top
+    rng = np.random.default_rng(1)
+    x, y = _grid(-10, 10, -4, 10)
+    ground = np.c_[x, y, 0.01 * x + rng.normal(0, 0.005, len(x))]
+    u, z = _grid(-7, 7, 0.05, 7.0)
+    window = ((np.mod(u, 2.0) > 0.6) & (np.mod(u, 2.0) < 1.6)) & (((z > 3.0) & (z < 4.4)) | ((z > 5.2) & (z < 6.4)))
+    facade = np.c_[u, 8.0 + rng.normal(0, 0.02, len(u)), z + 0.01 * u][~window]  # a rough render
+    pts = np.concatenate([ground, facade])
+    net = np.r_[np.full(len(ground), C.CLUTTER), np.where(facade[:, 2] > 4.5, C.BEAM, C.CLUTTER)].astype(np.uint16)
+    vmap, rows = _map(pts, net)
+    model = StructureModel(StructureConfig(), Environment.OUTDOOR, 0.1)
+    model.update(vmap, sensor_z=1.8)
+    model.finish(vmap)
+    model.apply(vmap)
+    walls = [e for e in model.elements(vmap) if e.kind is Kind.WALL]
+    assert len(walls) == 1
+    assert walls[0].hi[0] - walls[0].lo[0] > 13.0 and walls[0].hi[2] > 6.5
+    got = vmap.class_ids[rows[len(ground) :]]
+    assert np.mean(got == C.WALL) > 0.95
+    assert np.mean(vmap.class_ids[rows[: len(ground)]] == C.GROUND) > 0.95

@@ -45,11 +45,19 @@ _WALL_ITERATIONS: Final = 80  # a tile's few thousand voxels hold a handful of w
 _LINE_SCORE_POINTS: Final = 1000
 _CREDIT_SCANS: Final = 10  # unspent refit time carries over for at most this many scans
 _WALL_PLANES: Final = 6  # vertical planes tried per tile
-_WALL_GAP_M: Final = 0.5  # pieces of one wall leave gaps no wider than this (doors are found as openings)
+_WALL_GAP_M: Final = 0.5  # a wall's piece in a tile leaves gaps no wider than this ...
+_WALL_JOIN_GAP_M: Final = 1.5  # ... and its pieces on one line, gaps no wider than this (a door, a cabinet hiding it)
 _SURFACE_CELL_M: Final = 0.2  # a slab's voxels fill the cells of this size they cover ...
 _MIN_INTERIOR: Final = 0.25  # ... at least this share of them inside the surface (not on its outline)
 _FACE_CELL_M: Final = 0.5  # a wall (seen by scan lines far apart on it) fills the cells of this size ...
 _MIN_FACE_FILL: Final = 0.4  # ... of its extent at least this share (a strip through furniture or the ground does not)
+_CROSS_CELL_M: Final = 0.2  # a face's points with the map on both sides in cells of this size (or 2 voxels) ...
+_MAX_CROSSING: Final = 0.5  # ... more than this share of them: a cut through clutter (pipeline.planecheck's rule)
+_WALL_Z_GAP_M: Final = (
+    0.8  # a wall piece's voxels leave no vertical gap wider than this (rings of 2 deg at 4 m: 0.14 m)
+)
+_WALL_HEAD_M: Final = 0.5  # a face stopping this far under the ceiling with the ceiling seen ...
+_CEILING_SIDE_M: Final = 1.0  # ... within this on both sides of it stands in the room
 _SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
 _MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
 _SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its extent (it grows as it is seen)
@@ -87,6 +95,7 @@ class _Piece:
     u: tuple[float, float]  # extent along the wall direction (-n_y, n_x)
     z: tuple[float, float]
     rows: np.ndarray
+    moments: np.ndarray  # (6,) count, sum x, sum y, sum xx, sum xy, sum yy of its voxels: its wall's line
 
 
 @dataclass(slots=True)
@@ -124,12 +133,54 @@ def _fill_share(uv: np.ndarray, cell_m: float) -> float:
     return float(len(np.unique(c[:, 0] * shape[1] + c[:, 1])) / (shape[0] * shape[1]))
 
 
+def _crossing_share(face: np.ndarray, around: np.ndarray, line: np.ndarray, threshold_m: float, cell_m: float) -> float:
+    """Share of a vertical face's points (`face`, on `line`) with map points `around` just off it on both sides
+    next to them: a line RANSAC drew through furniture or a cluttered corner has the map on both sides, a wall's
+    face has space in front and nothing behind (the test of pipeline.planecheck, the yardstick's own)."""
+    if not len(face) or not len(around):
+        return 0.0
+    direction = np.array([-line[1], line[0]])
+    side = around[:, :2] @ line[:2] + line[2]
+    reach = 3 * cell_m / 2
+    near = (np.abs(side) > 1.5 * threshold_m) & (np.abs(side) < reach)
+    around, side = around[near], side[near]
+
+    def keys(p: np.ndarray) -> np.ndarray:
+        c = np.floor(np.c_[p[:, :2] @ direction, p[:, 2]] / cell_m).astype(np.int64)
+        return (c[:, 0] << 32) ^ (c[:, 1] & 0xFFFFFFFF)
+
+    own = keys(face)
+    front, back = np.unique(keys(around[side > 0])), np.unique(keys(around[side < 0]))
+    return float(np.mean(np.isin(own, front) & np.isin(own, back)))
+
+
+def _stands_in_room(face: np.ndarray, overhead: np.ndarray, line: np.ndarray, ceiling_z: float) -> bool:
+    """Whether a vertical face stops well under the ceiling and the ceiling is seen on both sides of its line over
+    most of its width: a wall reaching up would hide the ceiling beyond it, so this face stands in the room
+    (a bookcase, a partition, a cabinet's front), not a wall bounding it."""
+    top = float(np.percentile(face[:, 2], 99))
+    if not len(overhead) or ceiling_z - top < _WALL_HEAD_M:
+        return False
+    direction = np.array([-line[1], line[0]])
+    side = overhead[:, :2] @ line[:2] + line[2]
+    near = np.abs(side) < _CEILING_SIDE_M
+    u = np.floor(overhead[near, :2] @ direction / _FACE_CELL_M).astype(np.int64)
+    cells = np.unique(np.floor(face[:, :2] @ direction / _FACE_CELL_M).astype(np.int64))
+    both = np.isin(cells, u[side[near] > 0]) & np.isin(cells, u[side[near] < 0])
+    return bool(both.mean() > 0.5)
+
+
 def ransac_line(
-    xy: np.ndarray, threshold_m: float, iterations: int, rng: np.random.Generator
+    xy: np.ndarray,
+    threshold_m: float,
+    iterations: int,
+    rng: np.random.Generator,
+    context: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray]:
     """The line (unit normal, offset: n . xy + offset = 0) most points lie within `threshold_m` of, and that
     mask: a vertical plane of the levelled map, seen from above. All hypotheses scored at once on a sample, the
-    best refined by a principal direction of its inliers."""
+    best refined by a principal direction of its inliers among `xy` and `context` (points around, on which a
+    short piece's direction is measured along the whole wall)."""
     n = len(xy)
     i, j = rng.integers(0, n, size=(2, iterations))
     d = xy[j] - xy[i]
@@ -142,12 +193,13 @@ def ransac_line(
     sample = xy[rng.choice(n, size=min(n, _LINE_SCORE_POINTS), replace=False)]
     best = int(np.argmax((np.abs(sample @ normal.T + offset) < threshold_m).sum(axis=0)))
     nb, ob = normal[best], float(offset[best])
-    for _ in range(2):  # refine on the inliers
-        on = np.abs(xy @ nb + ob) < threshold_m
+    every = xy if context is None or not len(context) else np.concatenate([xy, context])
+    for _ in range(3):  # refine on the inliers
+        on = np.abs(every @ nb + ob) < threshold_m
         if on.sum() < 3:
             break
-        centre = xy[on].mean(axis=0)
-        _, vec = np.linalg.eigh(np.cov((xy[on] - centre).T))
+        centre = every[on].mean(axis=0)
+        _, vec = np.linalg.eigh(np.cov((every[on] - centre).T))
         nb = vec[:, 0]
         ob = float(-nb @ centre)
     return np.r_[nb, ob], np.abs(xy @ nb + ob) < threshold_m
@@ -180,6 +232,7 @@ class StructureModel:
         self.tile_xy = np.zeros((0, 2), np.int64)
         self.pieces: dict[int, _Piece] = {}
         self.wall_of_piece: dict[int, int] = {}  # piece id -> wall id (confirmed walls only)
+        self.wall_line: dict[int, np.ndarray] = {}  # wall id -> its line (normal, offset) over all its pieces, z range
         self.columns: dict[int, Element] = {}
         self.beams: dict[int, Element] = {}
         self.ground_keys = KeyTable()
@@ -355,7 +408,9 @@ class StructureModel:
         pad = max(1, round(0.15 / cfg.slab_bin_m))
         zb = self.zbin[: self.n]
         rows = np.flatnonzero((zb >= b0 - pad) & (zb < b1 + pad))
-        rows = rows[self.elem[rows] < 0]
+        # a slab's plane is the slab's even where a wall found first reaches it (the corner of a wall's head and
+        # the ceiling): wall pieces give way, slabs, columns and beams keep theirs
+        rows = rows[(self.elem[rows] < 0) | self._on_piece(rows)]
         rng = np.random.default_rng(len(rows))
         out: list[np.ndarray] = [np.zeros(0, np.int64)]
         first = 0
@@ -386,7 +441,16 @@ class StructureModel:
             self.elem[inliers] = slab.id
             self.kind_cls[inliers] = CLASS_OF[kind]
             out.append(inliers)
+            for t in np.unique(self.tile_of[inliers]):  # a new slab is a new storey for the tiles it covers: refit
+                tile = self.tiles[int(t)]
+                tile.pending = max(tile.pending, cfg.min_new_voxels)
         return np.concatenate(out)
+
+    def _on_piece(self, rows: np.ndarray) -> np.ndarray:
+        """Whether each row lies on a wall piece (not on a slab, column or beam)."""
+        if not self.pieces:
+            return np.zeros(len(rows), bool)
+        return np.isin(self.elem[rows], np.fromiter(self.pieces, np.int64, len(self.pieces)))
 
     def storey(self, xy: np.ndarray, z: float) -> tuple[float, float] | None:
         """(floor, ceiling) heights at `xy` of the story a sensor at height `z` stands in; None without a floor.
@@ -437,12 +501,17 @@ class StructureModel:
 
     def _join_pieces(self, vmap: VoxelMap, rows: np.ndarray, pids: list[int]) -> None:
         ps = [self.pieces[i] for i in pids]
-        normal = np.array([p.normal for p in ps])
-        offset = np.array([p.offset for p in ps])
-        u = np.array([p.u for p in ps])
-        z = np.array([p.z for p in ps])
+        # a confirmed piece is measured as its wall: the wall's line, and its height over all its pieces (a facade
+        # seen in pieces: a tile's piece may hold only its lower storey)
+        lines = np.array(
+            [
+                self.wall_line.get(self.wall_of_piece.get(i, -1), np.r_[p.normal, p.offset, p.z, p.u])
+                for i, p in zip(pids, ps, strict=True)
+            ]
+        )
+        normal, offset, z, u = lines[:, :2], lines[:, 2], lines[:, 3:5], lines[:, 5:7]
         pos = vmap.positions[rows]
-        d = np.abs(pos[:, :2] @ normal.T + offset)  # (F, P)
+        d = np.abs(pos[:, :2] @ normal.T + offset)  # (F, P): off its wall's line
         along = pos[:, :2] @ np.c_[-normal[:, 1], normal[:, 0]].T
         inside = (along > u[:, 0] - 0.2) & (along < u[:, 1] + 0.2)
         inside &= (pos[:, 2:3] > z[:, 0] - 0.2) & (pos[:, 2:3] < z[:, 1] + 0.2)
@@ -513,14 +582,15 @@ class StructureModel:
             was_ground = rows[self.elem[rows] == 0]
             self.elem[was_ground] = -1
             self.kind_cls[was_ground] = UNLABELLED
-            self._fit_walls(vmap, i, rows, None)
+            self._fit_walls(vmap, i, rows, None, block)
             walls = self._merge_walls()
-            return np.concatenate([stale, walls, self._ground_rows(vmap, rows), rows])
+            self._join_block_walls(vmap, i, block)
+            return np.concatenate([stale, walls, self._ground_rows(vmap, block), block])
         centre = (self.tile_xy[i] + 0.5) * self.cfg.tile_m
         zs = float(np.median(self.sensor_z[rows])) if len(rows) else 0.0
         storey = self.storey(centre, zs)
         # walls first: what stands or hangs free of them is a column or a beam
-        self._fit_walls(vmap, i, rows, storey)
+        self._fit_walls(vmap, i, rows, storey, block)
         walls = self._merge_walls()
         self._join_block_walls(vmap, i, block)
         if storey is not None:
@@ -690,19 +760,32 @@ class StructureModel:
             self.elem[on] = e.id
             self.kind_cls[on] = SemanticClass.BEAM
 
-    def _fit_walls(self, vmap: VoxelMap, i: int, rows: np.ndarray, storey: tuple[float, float] | None) -> None:
-        """Vertical planes of a tile, one after another (RANSAC); each a wall piece with its voxels."""
-        cfg = self.cfg
-        rows = rows[self.elem[rows] < 0]
+    def _wall_rows(self, vmap: VoxelMap, rows: np.ndarray, storey: tuple[float, float] | None) -> np.ndarray:
+        """The rows a wall may take: on no element but a wall piece, between the story's slabs."""
+        rows = rows[(self.elem[rows] < 0) | self._on_piece(rows)]
         if storey is not None:  # the walls of this story, not the slabs' edges
             z = vmap.positions[rows, 2]
-            rows = rows[(z > storey[0] + cfg.plane_threshold_m) & (z < storey[1] - cfg.plane_threshold_m)]
+            rows = rows[(z > storey[0] + self.cfg.plane_threshold_m) & (z < storey[1] - self.cfg.plane_threshold_m)]
+        return rows
+
+    def _fit_walls(
+        self, vmap: VoxelMap, i: int, rows: np.ndarray, storey: tuple[float, float] | None, block: np.ndarray
+    ) -> None:
+        """Vertical planes of a tile, one after another (RANSAC); each a wall piece with its voxels. A piece's
+        line is measured on the tiles around too (`block`), so that the pieces of one wall in neighbouring tiles
+        lie on one line and merge (a tile holds a short stretch of a wall, whose direction it measures badly)."""
+        cfg = self.cfg
+        rows = self._wall_rows(vmap, rows, storey)
+        rows = rows[self.elem[rows] < 0]
+        context = vmap.positions[np.setdiff1d(self._wall_rows(vmap, block, storey), rows), :2]
+        around = vmap.positions[block]
+        overhead = around[self.kind_cls[block] == SemanticClass.CEILING]  # the ceiling slab's voxels around
         rng = np.random.default_rng(i)
         for _ in range(_WALL_PLANES):  # one iteration per plane tried
             if len(rows) < cfg.wall_piece_min_voxels:
                 return
             pos = vmap.positions[rows]
-            line, on = ransac_line(pos[:, :2], cfg.plane_threshold_m, _WALL_ITERATIONS, rng)
+            line, on = ransac_line(pos[:, :2], cfg.plane_threshold_m, _WALL_ITERATIONS, rng, context)
             if line is None or on.sum() < cfg.wall_piece_min_voxels:
                 return
             keep_rows, rest = rows[on], rows[~on]
@@ -716,15 +799,27 @@ class StructureModel:
             cuts = np.flatnonzero(np.diff(along[order]) > _WALL_GAP_M) + 1
             runs = np.split(order, cuts)
             run = max(runs, key=len)
+            # ... and its largest band in height without a gap wider than _WALL_Z_GAP_M: a face is seen whole
+            # over its height, a line through furniture and a ceiling's fixtures leaves the storey's middle empty
+            zorder = run[np.argsort(p[run, 2])]
+            zcuts = np.flatnonzero(np.diff(p[zorder, 2]) > _WALL_Z_GAP_M) + 1
+            run = max(np.split(zorder, zcuts), key=len)
             if len(run) < cfg.wall_piece_min_voxels:
                 rows = np.r_[rows, np.setdiff1d(keep_rows, keep_rows[run])]
                 continue
             if _fill_share(np.c_[along[run], p[run, 2]], _FACE_CELL_M) < _MIN_FACE_FILL:
                 continue  # a strip through furniture or the ground seen from above, not a face standing up
+            cell = max(_CROSS_CELL_M, 2 * self.voxel)
+            if _crossing_share(p[run], around, np.r_[normal, offset], cfg.plane_threshold_m, cell) > _MAX_CROSSING:
+                continue  # a cut through clutter, not a surface
+            if storey is not None and _stands_in_room(p[run], overhead, np.r_[normal, offset], storey[1]):
+                continue  # furniture or a partition: the ceiling is seen over it on both sides
             zr = np.percentile(p[run, 2], [1, 99])
+            x, y = p[run, 0], p[run, 1]
+            moments = np.array([len(run), x.sum(), y.sum(), x @ x, x @ y, y @ y])
             piece = _Piece(
                 self._new_id(), i, normal, offset, (float(along[run].min()), float(along[run].max())),
-                (float(zr[0]), float(zr[1])), keep_rows[run],
+                (float(zr[0]), float(zr[1])), keep_rows[run], moments,
             )  # fmt: skip
             self.pieces[piece.id] = piece
             self.tiles[i].pieces.append(piece.id)
@@ -738,6 +833,7 @@ class StructureModel:
         before = dict(self.wall_of_piece)
         ids = np.array(list(self.pieces), np.int64)
         self.wall_of_piece = {}
+        self.wall_line = {}
         if len(ids):
             ps = [self.pieces[int(i)] for i in ids]
             normal = np.array([p.normal for p in ps])
@@ -755,7 +851,7 @@ class StructureModel:
             proj = np.einsum("ikc,jc->ijk", ends, direction)  # i's ends along j's direction
             gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
             link = (cos > np.cos(np.radians(cfg.wall_merge_deg))) & (dist < 2 * cfg.plane_threshold_m)
-            link &= (2 * cfg.plane_threshold_m > dist.T) & (gap < _WALL_GAP_M)
+            link &= (2 * cfg.plane_threshold_m > dist.T) & (gap < _WALL_JOIN_GAP_M)
             a, b = np.nonzero(link)
             graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids)))
             _, group = connected_components(graph, directed=False)
@@ -777,6 +873,7 @@ class StructureModel:
             np.minimum.at(first_id, group, ids)
             confirmed = ok[group]
             self.wall_of_piece = dict(zip(ids[confirmed].tolist(), first_id[group[confirmed]].tolist(), strict=True))
+            self.wall_line = self._wall_lines(ps, group, ok, first_id, normal[lead], np.c_[lo_z, hi_z], ends)
         out: list[np.ndarray] = [np.zeros(0, np.int64)]
         for pid in self.wall_of_piece.keys() - before.keys():  # newly confirmed: their voxels become wall
             rows = self.pieces[pid].rows
@@ -792,6 +889,34 @@ class StructureModel:
                 self.kind_cls[mine] = UNLABELLED
                 out.append(mine)
         return np.concatenate(out)
+
+    @staticmethod
+    def _wall_lines(
+        ps: list[_Piece],
+        group: np.ndarray,
+        ok: np.ndarray,
+        first_id: np.ndarray,
+        lead_normal: np.ndarray,
+        z: np.ndarray,
+        ends: np.ndarray,
+    ) -> dict[int, np.ndarray]:
+        """Per confirmed wall: the line through all its pieces' voxels (least squares, from their moments), its
+        height range `z` (per group) and its extent along that line (of its pieces' `ends`): (nx, ny, offset, z0,
+        z1, u0, u1). A wall seen in pieces is one plane, measured on all of it."""
+        moments = np.zeros((len(ok), 6))
+        np.add.at(moments, group, np.array([p.moments for p in ps]))
+        out: dict[int, np.ndarray] = {}
+        for g in np.flatnonzero(ok):  # one iteration per confirmed wall
+            count, sx, sy, sxx, sxy, syy = moments[g]
+            mx, my = sx / count, sy / count
+            cov = np.array(
+                [[sxx / count - mx * mx, sxy / count - mx * my], [sxy / count - mx * my, syy / count - my * my]]
+            )
+            _, vec = np.linalg.eigh(cov)
+            nrm = vec[:, 0] if vec[:, 0] @ lead_normal[g] >= 0 else -vec[:, 0]
+            along = ends[group == g].reshape(-1, 2) @ np.array([-nrm[1], nrm[0]])
+            out[int(first_id[g])] = np.r_[nrm, -(nrm @ np.array([mx, my])), z[g], along.min(), along.max()]
+        return out
 
     # ------------------------------------------------------------------------------------------ ground
 
@@ -816,7 +941,9 @@ class StructureModel:
         ground = (pos[:, 2] - own < cfg.ground_band_m) & (own < around + 0.25)
         ground &= own < self.sensor_z[rows] - 0.5
         free = self.elem[rows] < 0
-        on = rows[ground & (free | (self.kind_cls[rows] == SemanticClass.GROUND))]
+        # a wall's foot on the ground's surface is ground (the corner goes to the ground as indoors to the slab)
+        foot = self._on_piece(rows) & (pos[:, 2] - own < cfg.plane_threshold_m)
+        on = rows[ground & (free | foot | (self.kind_cls[rows] == SemanticClass.GROUND))]
         self.elem[on] = 0  # the ground is one element, id 0
         self.kind_cls[on] = SemanticClass.GROUND
         off = rows[~ground & (self.kind_cls[rows] == SemanticClass.GROUND)]
@@ -933,7 +1060,10 @@ class StructureModel:
             big = max(ps, key=lambda p: len(p.rows))
             if pos is None or not len(pos):
                 continue
-            plane = np.r_[big.normal, 0.0, big.offset]
+            line = self.wall_line.get(wall)
+            if line is None:
+                line = np.r_[big.normal, big.offset]
+            plane = np.r_[line[:2], 0.0, line[2]]
             out.append(Element(wall, Kind.WALL, pos.min(axis=0), pos.max(axis=0), plane=plane))
         out.extend(
             Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
