@@ -381,7 +381,7 @@ class StructureModel:
             refits += 1
             for s in old:
                 changed.append(self._drop_slab(s))
-            changed.append(self._fit_band(vmap, band, b0, b1, count))
+            changed.append(self._fit_band(vmap, band, b0, b1, count, fresh=not old))
         if self.slabs:  # a slab covers a floor: a small horizontal patch (a table top, a bed) is not one
             sizes = {s.id: s.voxels for s in self.slabs}
             largest = max(sizes.values())
@@ -401,9 +401,12 @@ class StructureModel:
         self.slabs.remove(slab)
         return rows
 
-    def _fit_band(self, vmap: VoxelMap, band: tuple[float, float], b0: int, b1: int, count: int) -> np.ndarray:
+    def _fit_band(
+        self, vmap: VoxelMap, band: tuple[float, float], b0: int, b1: int, count: int, fresh: bool = False
+    ) -> np.ndarray:
         """Up to two horizontal planes (a slab's top and underside) in a density band; each is a floor or a
-        ceiling by where the sensors that saw it were."""
+        ceiling by where the sensors that saw it were. A `fresh` band (no slab there before) is a new storey
+        bound for the tiles it covers: they are refitted."""
         cfg = self.cfg
         pad = max(1, round(0.15 / cfg.slab_bin_m))
         zb = self.zbin[: self.n]
@@ -441,7 +444,7 @@ class StructureModel:
             self.elem[inliers] = slab.id
             self.kind_cls[inliers] = CLASS_OF[kind]
             out.append(inliers)
-            for t in np.unique(self.tile_of[inliers]):  # a new slab is a new storey for the tiles it covers: refit
+            for t in np.unique(self.tile_of[inliers]) if fresh else ():  # one iteration per tile under a new slab
                 tile = self.tiles[int(t)]
                 tile.pending = max(tile.pending, cfg.min_new_voxels)
         return np.concatenate(out)
@@ -515,6 +518,9 @@ class StructureModel:
         along = pos[:, :2] @ np.c_[-normal[:, 1], normal[:, 0]].T
         inside = (along > u[:, 0] - 0.2) & (along < u[:, 1] + 0.2)
         inside &= (pos[:, 2:3] > z[:, 0] - 0.2) & (pos[:, 2:3] < z[:, 1] + 0.2)
+        # a voxel joins a piece of its own tile or the next (a refit forgets its pieces' voxels in its 3 x 3 block)
+        apart = np.abs(self.tile_xy[self.tile_of[rows]][:, None, :] - self.tile_xy[[p.tile for p in ps]][None])
+        inside &= apart.max(axis=2) <= 1
         score = np.where(inside & (d < self.cfg.plane_threshold_m), d, np.inf)
         best = np.argmin(score, axis=1)
         hit = np.isfinite(score[np.arange(len(rows)), best])
@@ -646,7 +652,13 @@ class StructureModel:
         labels, num = ndimage.label(tall, structure=np.ones((3, 3)))
         if not num:
             return
-        occupied = ndimage.binary_dilation(cover >= 0.25)
+        # the ring around a column is looked at in everything standing there, elements too (furniture whose faces
+        # were taken as wall pieces leaves a free corner that looks like a column; a wall beside it is not free)
+        every, every_origin, _, _ = self._footprints(vmap, block, zf + margin, zf + margin + reach, free_only=False)
+        at = origin - every_origin
+        occupied = ndimage.binary_dilation(
+            every[at[0] : at[0] + cover.shape[0], at[1] : at[1] + cover.shape[1]] >= 0.25 * full
+        )
         max_cells = cfg.column_max_width_m / self.voxel
         pieces = [self.pieces[p] for p in self._block_pieces(i)]
         for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
