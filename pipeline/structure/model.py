@@ -232,6 +232,7 @@ class StructureModel:
         self.tile_xy = np.zeros((0, 2), np.int64)
         self.pieces: dict[int, _Piece] = {}
         self.wall_of_piece: dict[int, int] = {}  # piece id -> wall id (confirmed walls only)
+        self.piece_span: dict[int, np.ndarray] = {}  # confirmed piece id -> its extent along its wall's line
         self.wall_line: dict[int, np.ndarray] = {}  # wall id -> its line (normal, offset) over all its pieces, z range
         self.columns: dict[int, Element] = {}
         self.beams: dict[int, Element] = {}
@@ -512,7 +513,9 @@ class StructureModel:
                 for i, p in zip(pids, ps, strict=True)
             ]
         )
-        normal, offset, z, u = lines[:, :2], lines[:, 2], lines[:, 3:5], lines[:, 5:7]
+        normal, offset, z = lines[:, :2], lines[:, 2], lines[:, 3:5]
+        # along the wall, a voxel joins within its piece's extent (a wall's gaps are doors, or what stands there)
+        u = np.array([self.piece_span.get(i, q[5:7]) for i, q in zip(pids, lines, strict=True)])
         pos = vmap.positions[rows]
         d = np.abs(pos[:, :2] @ normal.T + offset)  # (F, P): off its wall's line
         along = pos[:, :2] @ np.c_[-normal[:, 1], normal[:, 0]].T
@@ -846,6 +849,7 @@ class StructureModel:
         ids = np.array(list(self.pieces), np.int64)
         self.wall_of_piece = {}
         self.wall_line = {}
+        self.piece_span = {}
         if len(ids):
             ps = [self.pieces[int(i)] for i in ids]
             normal = np.array([p.normal for p in ps])
@@ -885,7 +889,10 @@ class StructureModel:
             np.minimum.at(first_id, group, ids)
             confirmed = ok[group]
             self.wall_of_piece = dict(zip(ids[confirmed].tolist(), first_id[group[confirmed]].tolist(), strict=True))
-            self.wall_line = self._wall_lines(ps, group, ok, first_id, normal[lead], np.c_[lo_z, hi_z], ends)
+            self.piece_span = {}
+            self.wall_line = self._wall_lines(
+                ps, group, ok, first_id, normal[lead], np.c_[lo_z, hi_z], ends, self.piece_span
+            )
         out: list[np.ndarray] = [np.zeros(0, np.int64)]
         for pid in self.wall_of_piece.keys() - before.keys():  # newly confirmed: their voxels become wall
             rows = self.pieces[pid].rows
@@ -911,10 +918,12 @@ class StructureModel:
         lead_normal: np.ndarray,
         z: np.ndarray,
         ends: np.ndarray,
+        spans: dict[int, np.ndarray],
     ) -> dict[int, np.ndarray]:
         """Per confirmed wall: the line through all its pieces' voxels (least squares, from their moments), its
         height range `z` (per group) and its extent along that line (of its pieces' `ends`): (nx, ny, offset, z0,
-        z1, u0, u1). A wall seen in pieces is one plane, measured on all of it."""
+        z1, u0, u1); and each piece's extent along its wall's line into `spans`. A wall seen in pieces is one
+        plane, measured on all of it."""
         moments = np.zeros((len(ok), 6))
         np.add.at(moments, group, np.array([p.moments for p in ps]))
         out: dict[int, np.ndarray] = {}
@@ -926,8 +935,11 @@ class StructureModel:
             )
             _, vec = np.linalg.eigh(cov)
             nrm = vec[:, 0] if vec[:, 0] @ lead_normal[g] >= 0 else -vec[:, 0]
-            along = ends[group == g].reshape(-1, 2) @ np.array([-nrm[1], nrm[0]])
+            members = np.flatnonzero(group == g)
+            along = ends[members] @ np.array([-nrm[1], nrm[0]])  # (M, 2): each piece's ends along its wall
             out[int(first_id[g])] = np.r_[nrm, -(nrm @ np.array([mx, my])), z[g], along.min(), along.max()]
+            for k, span in zip(members, np.sort(along, axis=1), strict=True):  # one iteration per piece
+                spans[ps[k].id] = span
         return out
 
     # ------------------------------------------------------------------------------------------ ground
