@@ -412,8 +412,8 @@ class StructureModel:
         pad = max(1, round(0.15 / cfg.slab_bin_m))
         zb = self.zbin[: self.n]
         rows = np.flatnonzero((zb >= b0 - pad) & (zb < b1 + pad))
-        # a slab's plane is the slab's even where a wall found first reaches it (the corner of a wall's head and
-        # the ceiling): wall pieces give way, slabs, columns and beams keep theirs
+        # a ceiling's plane is the ceiling's even where a wall found first reaches it (the corner of a wall's head
+        # and the ceiling): wall pieces give way there, slabs, columns and beams keep theirs
         rows = rows[(self.elem[rows] < 0) | self._on_piece(rows)]
         rng = np.random.default_rng(len(rows))
         out: list[np.ndarray] = [np.zeros(0, np.int64)]
@@ -439,6 +439,9 @@ class StructureModel:
             if abs(below) < cfg.sensor_margin_m:
                 continue  # at the sensor's height: a table top seen edge-on, not a slab
             kind = Kind.FLOOR if below > 0 else Kind.CEILING
+            if kind is Kind.FLOOR:  # a wall's foot stays the wall's (it stands on the floor, the simulator agrees)
+                inliers = inliers[~self._on_piece(inliers)]
+                pos = vmap.positions[inliers]
             lo, hi = np.percentile(pos, 1, axis=0), np.percentile(pos, 99, axis=0)
             slab = _Slab(self._new_id(), kind, band, plane, lo, hi, count, len(inliers))
             self.slabs.append(slab)
