@@ -112,6 +112,9 @@ class MapRows:
     rows: np.ndarray  # (K,) the map row of each kept point
     new_rows: np.ndarray  # rows the scan opened, in first-point order
     first_points: np.ndarray  # indices into the scan of the first kept point of each voxel the scan fell in
+    # new rows labelled before the labeller (on a confirmed structural element: class, score and embedding
+    # written); the labeller was given the rest
+    given: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __post_init__(self) -> None:
         _check_len("rows", self.rows, len(self.points))

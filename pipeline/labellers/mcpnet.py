@@ -179,6 +179,11 @@ class MCPNetLabeller:
         n = len(rows)
         self._grow(len(vmap))
         self.raw_class[rows], self.raw_score[rows], self.raw_prob[rows] = classes[:n], scores[:n], probs[:n]
+        given = frame.map_rows.given if frame.map_rows is not None else rows[:0]
+        if len(given):  # labelled by the structure model (its element's class and confidence): they vote as such
+            self.raw_class[given], self.raw_score[given] = vmap.class_ids[given], vmap.scores[given]
+            self.raw_prob[given] = 0.0
+            self.raw_prob[given, self.raw_class[given]] = vmap.scores[given]
         vmap.class_ids[rows] = classes[:n]
         vmap.scores[rows] = scores[:n]
         vmap.embeddings[rows] = emb[:n]

@@ -42,7 +42,8 @@ class TruthStandIn:
 
     def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
         self.inner.label(vmap, new_rows, frame)
-        self._overwrite(vmap, new_rows)
+        given = frame.map_rows.given if frame.map_rows is not None else new_rows[:0]
+        self._overwrite(vmap, np.r_[new_rows, given])  # the rows the structure model labelled too
 
     def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
         """The inner labeller's vote (the end of a run), and the truth put back over it."""

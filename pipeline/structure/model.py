@@ -171,6 +171,7 @@ class StructureModel:
         self.kind_cls = np.full(cap, UNLABELLED, np.uint16)  # that element's class (UNLABELLED: none)
         self.fused = np.full(cap, UNLABELLED, np.uint16)  # the class the structure gives (UNLABELLED: no say)
         self.fused_score = np.zeros(cap, np.float32)  # the confidence of that class (see `_fuse`)
+        self.has_net = np.ones(cap, bool)  # the network labelled the voxel (False: an element explained it on arrival)
         self.hist = np.zeros(_HIST_BINS, np.int64)
         self.hist_base: int | None = None
         self.slabs: list[_Slab] = []
@@ -192,6 +193,8 @@ class StructureModel:
         self.refit_voxels = 0  # voxels the refits went through so far
         self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
         self.last_tiles: list[tuple[int, int]] = []
+        self.updated = 0  # rows up to here went through `update` (those up to `n` through `take`)
+        self.emb_of: dict[int, np.ndarray] = {}  # element id -> the mean embedding of its network-labelled voxels
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -203,9 +206,11 @@ class StructureModel:
         if n <= len(self.net_cls):
             return
         cap = max(n, 2 * len(self.net_cls))
-        for name in ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused", "fused_score"):
+        names = ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused", "fused_score")
+        for name in (*names, "has_net"):
             old = getattr(self, name)
-            fill = {"net_cls": UNLABELLED, "elem": -1, "kind_cls": UNLABELLED, "fused": UNLABELLED}.get(name, 0)
+            fills = {"net_cls": UNLABELLED, "elem": -1, "kind_cls": UNLABELLED, "fused": UNLABELLED, "has_net": 1}
+            fill = fills.get(name, 0)
             arr = np.full(cap, fill, old.dtype)
             arr[: len(old)] = old
             setattr(self, name, arr)
@@ -221,27 +226,87 @@ class StructureModel:
 
     # ------------------------------------------------------------------------------------------ per scan
 
-    def update(self, vmap: VoxelMap, sensor_z: float, finishing: bool = False) -> np.ndarray:
-        """Take the voxels opened since the last call (labelled by the network), refit what changed within
-        the budget, and return the rows whose structure class may have changed."""
+    def take(self, vmap: VoxelMap, sensor_z: float) -> np.ndarray:
+        """The voxels opened since the last call into their tiles and the slab histogram, and onto the elements
+        found so far. Returns those on an element where the structure has a say (a floor found): `explain`
+        labels them, the network need not."""
         first, n = self.n, len(vmap)
         self._grow(n)
         new = np.arange(first, n, dtype=np.int64)
+        if not len(new):
+            return new
+        self.sensor_z[new] = sensor_z
+        self._add_rows(vmap, new)
+        self.n = n
+        if self.outdoor:
+            self._ground_rows(vmap, new)
+        else:
+            self._join_elements(vmap, new)
+        on = new[self.kind_cls[new] != UNLABELLED]
+        self.arrived += len(new)
+        self.explained += len(on)
+        return on if self.has_floor else new[:0]
+
+    def explain(self, vmap: VoxelMap, new_rows: np.ndarray, sensor_z: float) -> np.ndarray:
+        """Before the network: the scan's new voxels taken (`take`); those on a confirmed element get its class,
+        its confidence (its support) and its embedding (the mean of its voxels the network saw: an element is one
+        object for the clustering). Returns those rows: the network skips them."""
+        given = self.take(vmap, sensor_z)
+        if not self.cfg.skip_explained or not len(given):
+            return given[:0]
+        emb, known = self._element_embeddings(vmap, given)
+        if vmap.embedding_dim:  # an element no network-labelled voxel is known on yet: its voxels go to the network
+            given, emb = given[known], emb[known]
+        vmap.class_ids[given] = self.kind_cls[given]
+        vmap.scores[given] = self._support(given)
+        if vmap.embedding_dim:
+            vmap.embeddings[given] = emb
+        self.has_net[given] = False
+        self.net_cls[given] = UNLABELLED  # no network label: a confident one cannot keep (see `_fuse`)
+        self.net_score[given] = 0.0
+        return given
+
+    def _element_embeddings(self, vmap: VoxelMap, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K, E) unit mean embeddings of the network-labelled voxels of the element each row lies on, and whether
+        it has any. Computed once per element, on the voxels of the tiles the rows lie in (ids never return)."""
+        e = vmap.embedding_dim
+        elem = self.elem[rows]
+        uniq, inv = np.unique(elem, return_inverse=True)
+        missing = np.array([int(u) for u in uniq if int(u) not in self.emb_of], np.int64)
+        if e and len(missing):
+            cand = self._rows_of_tiles(np.unique(self.tile_of[rows[np.isin(elem, missing)]]))
+            cand = cand[self.has_net[cand] & np.isin(self.elem[cand], missing)]
+            owner = np.searchsorted(missing, self.elem[cand])
+            sums = np.zeros((len(missing), e), np.float64)
+            np.add.at(sums, owner, vmap.embeddings[cand])
+            norm = np.linalg.norm(sums, axis=1)
+            for j in np.flatnonzero(norm > 0):  # one iteration per element first seen this scan
+                self.emb_of[int(missing[j])] = (sums[j] / norm[j]).astype(np.float32)
+        out = np.zeros((len(uniq), max(e, 1)), np.float32)
+        known = np.zeros(len(uniq), bool)
+        for k, u in enumerate(uniq.tolist()):  # one iteration per element the scan's voxels lie on
+            vec = self.emb_of.get(u)
+            if vec is not None:
+                out[k, :e] = vec
+                known[k] = True
+        return out[inv.ravel(), :e], known[inv.ravel()]
+
+    def _rows_of_tiles(self, tiles: np.ndarray) -> np.ndarray:
+        chunks = [self.tiles[int(t)].rows() for t in tiles]
+        return np.concatenate(chunks) if chunks else np.zeros(0, np.int64)
+
+    def update(self, vmap: VoxelMap, sensor_z: float, finishing: bool = False) -> np.ndarray:
+        """After the network labelled the scan's new voxels (those `take` or `explain` did not take are taken
+        now): refit what changed within the budget, and return the rows whose structure class may have changed."""
+        self.take(vmap, sensor_z)
+        new = np.arange(self.updated, self.n, dtype=np.int64)
+        self.updated = self.n
         changed = [new]
         if len(new):
-            self.net_cls[new] = vmap.class_ids[new]
-            self.net_score[new] = vmap.scores[new]
-            self.sensor_z[new] = sensor_z
-            self._add_rows(vmap, new)
-        self.n = n
+            net = new[self.has_net[new]]
+            self.net_cls[net] = vmap.class_ids[net]
+            self.net_score[net] = vmap.scores[net]
         changed.append(self._update_slabs(vmap, finishing))
-        if self.outdoor:
-            changed.append(self._ground_rows(vmap, new))
-        else:
-            changed.append(self._join_elements(vmap, new))
-        if not finishing:
-            self.arrived += len(new)
-            self.explained += int(np.count_nonzero(self.kind_cls[new] != UNLABELLED))
         changed.extend(self._refit_tiles(vmap, finishing))
         rows = np.unique(np.concatenate(changed)) if len(changed) > 1 else new
         self._fuse(vmap, rows)
