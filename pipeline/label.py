@@ -42,10 +42,11 @@ class Labeller(Protocol):
     name: str
     embedding_dim: int  # width of the per-voxel embeddings it writes (0 = none)
 
-    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray | None:
         """Fill `class_ids`, `scores` (and where it has them `normals`, `embeddings`) of the new rows.
         `frame` is registered (pose, world points) and `frame.map_rows` says which points went into the map, and
-        which new rows were labelled already (`given`: not among `new_rows`)."""
+        which new rows were labelled already (`given`: not among `new_rows`). Returns the older rows whose class
+        or score it rewrote too (instance votes), or None when it cannot say (any may have changed)."""
         ...
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
@@ -92,6 +93,7 @@ def label_frame(
     n = len(scan)
     if not frame.registration_ok or frame.world_points is None:
         frame.map_rows = MapRows.empty()
+        frame.rewritten = frame.map_rows.new_rows
         frame.labels = Labels.empty(n)
         frame.counts.update(kept=0, new_voxels=0, map_voxels=len(vmap))
         return frame
@@ -113,7 +115,9 @@ def label_frame(
     frame.map_rows = MapRows(points=idx, rows=rows, new_rows=new_rows, first_points=idx[first], given=given)
     if len(new_rows):
         rest = new_rows[~np.isin(new_rows, given)] if len(given) else new_rows
-        labeller.label(vmap, rest, frame)
+        frame.rewritten = labeller.label(vmap, rest, frame)
+    else:
+        frame.rewritten = new_rows
     labels = Labels.empty(n)
     labels.class_ids[idx] = vmap.class_ids[rows]
     labels.instance_ids[idx] = vmap.instance_ids[rows]

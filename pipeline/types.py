@@ -138,6 +138,9 @@ class Frame:
     registration_ok: bool = True
     registration_note: str = ""
     map_rows: MapRows | None = None  # what the labelling stage did to the map (None before it)
+    # older map rows whose class or score the labeller rewrote with this scan (instance votes); None: it could
+    # not say (any may have changed)
+    rewritten: np.ndarray | None = None
     labels: Labels | None = None  # for the points of `scan` (unlabelled where not kept)
     merges: list[InstanceMerge] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from aftershock import sources
+from aftershock.pipeline.classes import UNLABELLED
 from aftershock.pipeline.config import Environment, load_config
 from aftershock.pipeline.label import label_frame
 from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller
@@ -60,18 +61,19 @@ class _Counting(MCPNetLabeller):
 
     counted: list[int]
 
-    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray:
         self.counted.append(len(new_rows))
-        super().label(vmap, new_rows, frame)
+        return super().label(vmap, new_rows, frame)
 
 
-def test_the_network_is_given_only_the_voxels_the_structure_does_not_explain() -> None:
+def test_the_network_is_given_only_the_voxels_the_structure_does_not_explain_and_apply_writes_only_changes() -> None:
     cfg = load_config()
     labeller = _Counting(cfg, cfg.cluster.link_beta(Environment.INDOOR))
     labeller.counted = []
     vmap = VoxelMap.from_config(cfg.map, labeller.embedding_dim)
     model = StructureModel(cfg.structure, Environment.INDOOR, vmap.voxel_size)
     given = 0
+    written: list[float] = []  # share of the map `apply` wrote, per scan
     for scan in sources.open(MISSION):  # the true poses: the map is levelled
         pose = scan.gt_pose
         assert pose is not None
@@ -85,7 +87,16 @@ def test_the_network_is_given_only_the_voxels_the_structure_does_not_explain() -
         # the labeller's instance votes count them with the element's class and confidence
         assert (labeller.raw_class[rows.given] == vmap.class_ids[rows.given]).all()
         given += len(rows.given)
+        assert frame.rewritten is not None  # the rows its instance votes rewrote
         model.update(vmap, float(pose[2, 3]))
-        model.apply(vmap)
+        model.apply(vmap, frame.rewritten)
+        # only the rows whose class changed were written, yet the map holds the structure's class wherever it
+        # has a say and the labeller's own elsewhere
+        n = len(vmap)
+        written.append(model.last_applied / n)
+        fused = model.fused[:n]
+        expected = np.where(fused != UNLABELLED, fused, model.lab_cls[:n])
+        assert np.array_equal(vmap.class_ids[:n], expected)
     assert given > 0.1 * len(vmap)
+    assert np.mean(written[5:]) < 0.5
     assert sum(labeller.counted) + given == len(vmap)

@@ -172,6 +172,10 @@ class StructureModel:
         self.fused = np.full(cap, UNLABELLED, np.uint16)  # the class the structure gives (UNLABELLED: no say)
         self.fused_score = np.zeros(cap, np.float32)  # the confidence of that class (see `_fuse`)
         self.has_net = np.ones(cap, bool)  # the network labelled the voxel (False: an element explained it on arrival)
+        self.lab_cls = np.full(cap, UNLABELLED, np.uint16)  # the labeller's latest class and score of the voxel
+        self.lab_score = np.zeros(cap, np.float32)  # (written back where the structure no longer has a say)
+        self.shown_cls = np.full(cap, UNLABELLED, np.uint16)  # what `apply` last wrote (UNLABELLED: the labeller's)
+        self.shown_score = np.zeros(cap, np.float32)
         self.hist = np.zeros(_HIST_BINS, np.int64)
         self.hist_base: int | None = None
         self.slabs: list[_Slab] = []
@@ -195,6 +199,9 @@ class StructureModel:
         self.last_tiles: list[tuple[int, int]] = []
         self.updated = 0  # rows up to here went through `update` (those up to `n` through `take`)
         self.emb_of: dict[int, np.ndarray] = {}  # element id -> the mean embedding of its network-labelled voxels
+        self.applied = 0  # rows up to here were written by `apply`
+        self.dirty: list[np.ndarray] = []  # rows fused since the last `apply`
+        self.last_applied = 0  # rows the last `apply` wrote
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -207,9 +214,10 @@ class StructureModel:
             return
         cap = max(n, 2 * len(self.net_cls))
         names = ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused", "fused_score")
-        for name in (*names, "has_net"):
+        for name in (*names, "has_net", "lab_cls", "lab_score", "shown_cls", "shown_score"):
             old = getattr(self, name)
             fills = {"net_cls": UNLABELLED, "elem": -1, "kind_cls": UNLABELLED, "fused": UNLABELLED, "has_net": 1}
+            fills.update(lab_cls=UNLABELLED, shown_cls=UNLABELLED)
             fill = fills.get(name, 0)
             arr = np.full(cap, fill, old.dtype)
             arr[: len(old)] = old
@@ -319,13 +327,32 @@ class StructureModel:
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
-    def apply(self, vmap: VoxelMap) -> None:
-        """Write the fused classes and their confidence into the map (the network's instance votes rewrite
-        classes and scores every scan)."""
-        fused = self.fused[: self.n]
-        where = fused != UNLABELLED
-        vmap.class_ids[: self.n][where] = fused[where]
-        vmap.scores[: self.n][where] = self.fused_score[: self.n][where]
+    def apply(self, vmap: VoxelMap, rewritten: np.ndarray | None = None) -> None:
+        """Write the fused classes and their confidence into the map where they changed, and the labeller's own
+        back where the structure no longer has a say. `rewritten`: the older rows the labeller wrote since the
+        last call (its instance votes; the new rows it labelled are known); None: it cannot say, every row is
+        compared with what was last written here."""
+        n = self.n
+        new = np.arange(self.applied, n, dtype=np.int64)
+        self.applied = n
+        if rewritten is None:  # the labeller's values: wherever the map no longer holds what was written here
+            old = np.arange(n - len(new), dtype=np.int64)
+            ours = (self.shown_cls[old] != UNLABELLED) & (vmap.class_ids[old] == self.shown_cls[old])
+            ours &= vmap.scores[old] == self.shown_score[old]
+            wrote = np.r_[old[~ours], new]
+        else:
+            wrote = np.r_[np.asarray(rewritten, np.int64), new]
+        self.lab_cls[wrote] = vmap.class_ids[wrote]
+        self.lab_score[wrote] = vmap.scores[wrote]
+        rows = np.unique(np.concatenate([wrote, *self.dirty]))
+        self.dirty = []
+        self.last_applied = len(rows)
+        fused = self.fused[rows]
+        on = fused != UNLABELLED
+        vmap.class_ids[rows] = np.where(on, fused, self.lab_cls[rows])
+        vmap.scores[rows] = np.where(on, self.fused_score[rows], self.lab_score[rows])
+        self.shown_cls[rows] = fused
+        self.shown_score[rows] = np.where(on, self.fused_score[rows], 0.0)
 
     def _add_rows(self, vmap: VoxelMap, rows: np.ndarray) -> None:
         pos = vmap.positions[rows]
@@ -895,6 +922,7 @@ class StructureModel:
         """The class the structure gives each row (UNLABELLED where the network's label stands)."""
         if not len(rows):
             return
+        self.dirty.append(rows)  # `apply` writes them
         if not self.has_floor:
             self.fused[rows] = UNLABELLED  # no floor, no structure: the network alone (one warning says so)
             return

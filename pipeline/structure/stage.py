@@ -16,7 +16,7 @@ from aftershock.pipeline.voxel_map import VoxelMap
 def structure_frame(frame: Frame, vmap: VoxelMap, model: StructureModel) -> Frame:
     if frame.pose is not None and np.isfinite(frame.pose).all():
         model.update(vmap, float(frame.pose[2, 3]))
-    model.apply(vmap)
+    model.apply(vmap, frame.rewritten)
     kept = frame.map_rows
     if frame.labels is not None and kept is not None and len(kept.rows):
         frame.labels.class_ids[kept.points] = vmap.class_ids[kept.rows]
