@@ -202,6 +202,7 @@ class StructureModel:
         self.applied = 0  # rows up to here were written by `apply`
         self.dirty: list[np.ndarray] = []  # rows fused since the last `apply`
         self.last_applied = 0  # rows the last `apply` wrote
+        self.support_counts: np.ndarray | None = None  # voxels per element id at the last fusion (see `_support`)
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -266,7 +267,8 @@ class StructureModel:
         if vmap.embedding_dim:  # an element no network-labelled voxel is known on yet: its voxels go to the network
             given, emb = given[known], emb[known]
         vmap.class_ids[given] = self.kind_cls[given]
-        vmap.scores[given] = self._support(given)
+        # the support as of the last scan's fusion (the fusion after the network gives them the current one)
+        vmap.scores[given] = self._support(given, self.support_counts)
         if vmap.embedding_dim:
             vmap.embeddings[given] = emb
         self.has_net[given] = False
@@ -284,12 +286,14 @@ class StructureModel:
         if e and len(missing):
             cand = self._rows_of_tiles(np.unique(self.tile_of[rows[np.isin(elem, missing)]]))
             cand = cand[self.has_net[cand] & np.isin(self.elem[cand], missing)]
-            owner = np.searchsorted(missing, self.elem[cand])
-            sums = np.zeros((len(missing), e), np.float64)
-            np.add.at(sums, owner, vmap.embeddings[cand])
-            norm = np.linalg.norm(sums, axis=1)
-            for j in np.flatnonzero(norm > 0):  # one iteration per element first seen this scan
-                self.emb_of[int(missing[j])] = (sums[j] / norm[j]).astype(np.float32)
+            owner = self.elem[cand]
+            order = np.argsort(owner, kind="stable")
+            ids, start = np.unique(owner[order], return_index=True)
+            if len(ids):
+                sums = np.add.reduceat(vmap.embeddings[cand[order]].astype(np.float64), start, axis=0)
+                norm = np.linalg.norm(sums, axis=1)
+                for j in np.flatnonzero(norm > 0):  # one iteration per element first seen this scan
+                    self.emb_of[int(ids[j])] = (sums[j] / norm[j]).astype(np.float32)
         out = np.zeros((len(uniq), max(e, 1)), np.float32)
         known = np.zeros(len(uniq), bool)
         for k, u in enumerate(uniq.tolist()):  # one iteration per element the scan's voxels lie on
@@ -969,20 +973,23 @@ class StructureModel:
         self.fused[rows] = out
         self.fused_score[rows] = np.where(out != UNLABELLED, score, 0.0)
 
-    def _support(self, rows: np.ndarray) -> np.ndarray:
+    def _support(self, rows: np.ndarray, counts: np.ndarray | None = None) -> np.ndarray:
         """Per row, the geometric support of the element it lies on (0 off any): the element's voxels (a wall's
-        over all its pieces) over the voxels that confirm a slab (`slab_min_voxels`), capped at 1."""
+        over all its pieces) over the voxels that confirm a slab (`slab_min_voxels`), capped at 1. `counts`: the
+        voxels per element as counted before (`support_counts`), else counted now."""
         elem = self.elem[rows]
         g = np.zeros(len(rows))
         if not np.any(elem >= 0):
             return g
-        owner = self.elem[: self.n]
-        counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1).astype(np.float64)
-        if self.wall_of_piece:  # a wall piece counts its whole wall
-            pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
-            walls = np.fromiter(self.wall_of_piece.values(), np.int64, len(pids))
-            per_wall = np.bincount(walls, weights=counts[pids], minlength=int(walls.max()) + 1)
-            counts[pids] = per_wall[walls]
+        if counts is None or len(counts) <= int(elem.max()):
+            owner = self.elem[: self.n]
+            counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1).astype(np.float64)
+            if self.wall_of_piece:  # a wall piece counts its whole wall
+                pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
+                walls = np.fromiter(self.wall_of_piece.values(), np.int64, len(pids))
+                per_wall = np.bincount(walls, weights=counts[pids], minlength=int(walls.max()) + 1)
+                counts[pids] = per_wall[walls]
+            self.support_counts = counts
         on = elem >= 0
         g[on] = np.minimum(counts[elem[on]] / self.cfg.slab_min_voxels, 1.0)
         return g
