@@ -185,6 +185,7 @@ class MCPNetLabeller:
         self._grow(len(vmap))
         self.raw_class[rows], self.raw_score[rows], self.raw_prob[rows] = classes[:n], scores[:n], probs[:n]
         given = frame.map_rows.given if frame.map_rows is not None else rows[:0]
+        given = given[vmap.class_ids[given] < self.net.num_classes] if len(given) else given
         if len(given):  # labelled by the structure model (its element's class and confidence): they vote as such
             self.raw_class[given], self.raw_score[given] = vmap.class_ids[given], vmap.scores[given]
             self.raw_prob[given] = 0.0

@@ -30,7 +30,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from aftershock.pipeline.classes import UNLABELLED, SemanticClass
+from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticClass
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
@@ -263,6 +263,7 @@ class StructureModel:
         given = self.take(vmap, sensor_z)
         if not self.cfg.skip_explained or not len(given):
             return given[:0]
+        given = given[self.kind_cls[given] < NETWORK_CLASSES]  # the ground outdoors is no network's class: not skipped
         emb, known = self._element_embeddings(vmap, given)
         if vmap.embedding_dim:  # an element no network-labelled voxel is known on yet: its voxels go to the network
             given, emb = given[known], emb[known]
