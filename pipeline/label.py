@@ -30,9 +30,9 @@ LABELLERS: Final[dict[str, str]] = {
     "pointnet-spatial": "pointnet_online",
 }
 FALLBACK_LABELLER: Final = "region-growing"
-# (map, the scan's new rows, its sensor height) -> the rows of them already labelled (class, score, embedding
-# written) by another part of the stream: the structure model's confirmed elements. The labeller gets the rest.
-Explain = Callable[[VoxelMap, np.ndarray, float], np.ndarray]
+# (map, the scan's new rows, the frame) -> the rows of them already labelled (class, score, embedding written) by
+# another part of the stream: the structure model's confirmed elements. The labeller gets the rest.
+Explain = Callable[[VoxelMap, np.ndarray, Frame], np.ndarray]
 
 
 @runtime_checkable
@@ -109,7 +109,7 @@ def label_frame(
     given = new_rows[:0]
     if explain is not None and frame.pose is not None:
         t0 = perf_counter()
-        given = explain(vmap, new_rows, float(frame.pose[2, 3]))
+        given = explain(vmap, new_rows, frame)
         # the structure model's work, timed as its own
         frame.timings_ms["structure"] = frame.timings_ms.get("structure", 0.0) + (perf_counter() - t0) * 1e3
     frame.map_rows = MapRows(points=idx, rows=rows, new_rows=new_rows, first_points=idx[first], given=given)

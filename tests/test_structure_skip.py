@@ -18,9 +18,9 @@ from aftershock.pipeline.voxel_map import VoxelMap
 MISSION = "sim://office?seed=3&sensor=vlp16&scans=15&robot=wheeled&height=1&speed=1&turn=45&color=0"
 
 
-def _run(*overrides: str) -> StreamResult:
+def _run(*overrides: str, uri: str = MISSION) -> StreamResult:
     cfg = load_config(None, list(overrides))
-    return run_stream(sources.open(MISSION), cfg, [], RunInfo(source=MISSION, source_kind="sim"), lambda _t: None)
+    return run_stream(sources.open(uri), cfg, [], RunInfo(source=uri, source_kind="sim"), lambda _t: None)
 
 
 def test_voxels_on_a_confirmed_element_skip_the_network_and_keep_class_confidence_and_object() -> None:
@@ -54,6 +54,15 @@ def test_without_the_skip_the_network_labels_every_voxel() -> None:
     res = _run("structure.skip_explained=false")
     assert res.structure is not None
     assert res.structure.has_net[: len(res.vmap)].all()
+
+
+def test_a_log_with_colour_skips_only_when_asked() -> None:
+    """With colour the skip cost the validation missions objects and mean IoU: off unless asked for."""
+    coloured = MISSION.replace("color=0", "color=1")
+    for asked in (False, True):
+        res = _run(f"structure.skip_with_colour={str(asked).lower()}", uri=coloured)
+        assert res.structure is not None
+        assert bool((~res.structure.has_net[: len(res.vmap)]).any()) == asked
 
 
 class _Counting(MCPNetLabeller):

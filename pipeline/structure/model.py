@@ -34,6 +34,7 @@ from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticCla
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
+from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 
 log = logging.getLogger(__name__)
@@ -256,12 +257,15 @@ class StructureModel:
         self.explained += len(on)
         return on if self.has_floor else new[:0]
 
-    def explain(self, vmap: VoxelMap, new_rows: np.ndarray, sensor_z: float) -> np.ndarray:
+    def explain(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray:
         """Before the network: the scan's new voxels taken (`take`); those on a confirmed element get its class,
         its confidence (its support) and its embedding (the mean of its voxels the network saw: an element is one
-        object for the clustering). Returns those rows: the network skips them."""
-        given = self.take(vmap, sensor_z)
-        if not self.cfg.skip_explained or not len(given):
+        object for the clustering). Returns those rows: the network skips them (with colour only where
+        `skip_with_colour` says so)."""
+        assert frame.pose is not None, "a frame is registered before it is labelled"
+        given = self.take(vmap, float(frame.pose[2, 3]))
+        colour = frame.scan.colors is not None
+        if not self.cfg.skip_explained or (colour and not self.cfg.skip_with_colour) or not len(given):
             return given[:0]
         given = given[self.kind_cls[given] < NETWORK_CLASSES]  # the ground outdoors is no network's class: not skipped
         emb, known = self._element_embeddings(vmap, given)
