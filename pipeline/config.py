@@ -414,6 +414,19 @@ class StructureConfig(_Section):
     ground_cell_m: Positive = 1.0  # outdoors: the ground's height per cell of this size ...
     ground_band_m: Positive = 0.2  # ... and a voxel within this height above it is ground
     keep_confidence: Fraction = 0.9  # a confident non-structural network label on an element is kept
+    # openings (pipeline.structure.openings): gaps in a wall's face the sensor saw through
+    openings: bool = True
+    opening_cell_m: Positive = 0.1  # the wall's occupancy grid (along it, height above the floor)
+    door_min_width_m: Positive = 0.5  # a door is a gap from the floor up this wide at least ...
+    door_max_width_m: Positive = 2.5  # ... and at most
+    window_min_width_m: Positive = 0.4  # a window is a gap over a sill this wide at least ...
+    window_max_width_m: Positive = 3.5  # ... and at most ...
+    sill_min_m: NonNegative = 0.6  # ... its sill (the lowest rays through it) this high above the floor at least ...
+    sill_max_m: Positive = 1.5  # ... and at most
+    opening_min_height_m: Positive = 0.6  # an opening's height seen, at least
+    opening_max_width_m: Positive = 3.5  # wall pieces this far apart along one line may bound one opening
+    opening_min_seen: Fraction = 0.3  # the sensor saw through this share of an opening's width (not a shadow)
+    opening_depth_m: Positive = 0.35  # an opening's voxels (frames, glass) lie at most this far behind the face
 
 
 class Config(_Section):

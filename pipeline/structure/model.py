@@ -34,6 +34,7 @@ from aftershock.pipeline.classes import UNLABELLED, SemanticClass
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
+from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 
 log = logging.getLogger(__name__)
@@ -192,6 +193,8 @@ class StructureModel:
         self.refit_voxels = 0  # voxels the refits went through so far
         self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
         self.last_tiles: list[tuple[int, int]] = []
+        self.sight = Sightlines()  # where the sensor stood for each voxel (`observe`), for the openings
+        self.openings: list[Opening] = []
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -252,7 +255,21 @@ class StructureModel:
         self.slab_search_n = 0
         self.final = True
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
+        self._find_openings(vmap)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
+
+    def observe(self, vmap: VoxelMap, origin: np.ndarray) -> None:
+        """The voxels opened since the last call were seen from a sensor at `origin` (levelled map frame)."""
+        self.sight.observe(len(vmap), origin)
+
+    def _find_openings(self, vmap: VoxelMap) -> None:
+        """Windows and doors in the walls found (pipeline.structure.openings), their voxels taking their class."""
+        for op in self.openings:  # one iteration per opening found before
+            mine = op.rows[self.elem[op.rows] == op.id]
+            self.elem[mine] = -1
+            self.kind_cls[mine] = UNLABELLED
+        self.openings = find_openings(self, vmap, self.sight)
+        mark_openings(self, self.openings)
 
     def apply(self, vmap: VoxelMap) -> None:
         """Write the fused classes and their confidence into the map (the network's instance votes rewrite
@@ -938,6 +955,7 @@ class StructureModel:
         out.extend(
             Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
         )
+        out.extend(op.element() for op in self.openings)
         if self.outdoor and np.any(self.kind_cls[: self.n] == SemanticClass.GROUND) and vmap is not None:
             g = vmap.positions[: self.n][self.kind_cls[: self.n] == SemanticClass.GROUND]
             out.append(Element(0, Kind.GROUND, g.min(axis=0), g.max(axis=0)))

@@ -1,0 +1,307 @@
+"""Openings (windows and doors) of the structure model: gaps in a wall's face, from the floor up (a door) or from
+a sill up (a window), bounded by wall on both sides, that the sensor saw through.
+
+Per wall line (confirmed wall pieces that are parallel and coplanar, however far apart along the line: a door
+leaves two walls), an occupancy grid over (along the wall, height above the story's floor) of the pieces'
+voxels; a column of the grid is wall, door-like (empty low and high) or window-like (wall low, empty high). A run
+of door- or window-like columns between wall columns, of a plausible size, is a candidate. A hole that is only
+occlusion (something in front shadowing the wall) is not an opening: a candidate needs returns behind the
+wall's face through it (a ray from the sensor that saw a voxel crosses the face inside the candidate: glass,
+a frame, a door leaf, the room beyond), over a share of its width (`opening_min_seen`).
+
+Voxels in an opening near the wall's face (frames, glass, a closed leaf) and a door's open leaf beside its jambs
+take the opening's class, fused with the network's like any element's (see `model.StructureModel._fuse`).
+Found at the end of a run, over every wall (after every tile was refitted), and kept with the elements.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from aftershock.pipeline.classes import SemanticClass
+from aftershock.pipeline.config import StructureConfig
+from aftershock.pipeline.structure.elements import Element, Kind
+
+if TYPE_CHECKING:
+    from aftershock.pipeline.structure.model import StructureModel, _Piece
+    from aftershock.pipeline.voxel_map import VoxelMap
+
+_LOCAL_M: Final = 1.5  # a gap's face is the line fitted to the wall's voxels this far on both sides of it
+_LOW_BAND: Final = (0.15, 0.6)  # heights (above the floor) under any sill ...
+_HIGH_BAND: Final = (1.2, 1.8)  # ... and above any sill, under any door's head
+_WALL_SHARE: Final = 0.3  # a band is wall where this share of its cells hold the wall's voxels ...
+_EMPTY_SHARE: Final = 0.1  # ... and empty under this share
+_FRONT_M: Final = 0.15  # an opening's voxels lie at most this far in front of the face (a frame, a sill board)
+_LEAF_REACH_M: Final = 0.45  # an open leaf lies within this of its jamb along the wall (it swings 65-110 degrees)
+
+
+@dataclass(slots=True)
+class Opening:
+    """A window or a door: a rectangle in a wall's face (`normal`, `offset` of its local line, `u` along the
+    direction (-n_y, n_x), `z` heights) and the voxels that take its class."""
+
+    id: int
+    kind: Kind
+    normal: np.ndarray
+    offset: float
+    u: tuple[float, float]
+    z: tuple[float, float]
+    seen: float  # share of its width the sensor saw through
+    rows: np.ndarray
+
+    def element(self) -> Element:
+        t = np.array([-self.normal[1], self.normal[0]])
+        base = -self.offset * self.normal
+        a, b = base + self.u[0] * t, base + self.u[1] * t
+        lo = np.r_[np.minimum(a, b), self.z[0]]
+        hi = np.r_[np.maximum(a, b), self.z[1]]
+        return Element(self.id, self.kind, lo, hi, plane=np.r_[self.normal, 0.0, self.offset], voxels=len(self.rows))
+
+
+class Sightlines:
+    """Where the sensor stood when each map voxel opened (the start of the ray that found it)."""
+
+    def __init__(self) -> None:
+        self.origins = np.full((4096, 3), np.nan, np.float32)
+        self.n = 0
+
+    def observe(self, n_rows: int, origin: np.ndarray) -> None:
+        """Voxels up to `n_rows` (those opened since the last call) were seen from `origin`."""
+        if n_rows > len(self.origins):
+            grown = np.full((max(n_rows, 2 * len(self.origins)), 3), np.nan, np.float32)
+            grown[: len(self.origins)] = self.origins
+            self.origins = grown
+        if n_rows > self.n:
+            self.origins[self.n : n_rows] = np.asarray(origin, np.float32)[:3]
+            self.n = n_rows
+
+
+def _lines(model: StructureModel) -> list[list[int]]:
+    """Confirmed wall pieces grouped by line: parallel, coplanar, at most `opening_max_width_m` apart along it."""
+    cfg = model.cfg
+    ids = list(model.wall_of_piece)
+    if not ids:
+        return []
+    ps = [model.pieces[i] for i in ids]
+    normal = np.array([p.normal for p in ps])
+    offset = np.array([p.offset for p in ps])
+    u = np.array([p.u for p in ps])
+    direction = np.c_[-normal[:, 1], normal[:, 0]]
+    mid = u.mean(axis=1)
+    centre = direction * mid[:, None] - normal * offset[:, None]
+    cos = np.abs(normal @ normal.T)
+    dist = np.abs(centre @ normal.T + offset[None, :])
+    ends = np.stack([centre + direction * (u[:, :1] - mid[:, None]), centre + direction * (u[:, 1:] - mid[:, None])], 1)
+    proj = np.einsum("ikc,jc->ijk", ends, direction)
+    gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
+    link = (cos > np.cos(np.radians(cfg.wall_merge_deg))) & (dist < 2.5 * cfg.plane_threshold_m)
+    link &= (dist.T < 2.5 * cfg.plane_threshold_m) & (gap < cfg.opening_max_width_m)
+    a, b = np.nonzero(link)
+    _, group = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids))), directed=False)
+    return [[ids[k] for k in np.flatnonzero(group == g)] for g in range(group.max() + 1)]
+
+
+def _face_pieces(ps: list[_Piece], pos: np.ndarray, origin: np.ndarray, known: np.ndarray, thr: float) -> list[_Piece]:
+    """A line's pieces in its face: without those standing behind another of them, across most of their width
+    (glass or a frame set back in a window's reveal)."""
+    out = []
+    for p in ps:  # one iteration per piece of the line (a handful)
+        pr = p.rows[p.rows < len(known)]
+        if not len(pr):
+            continue
+        c = pos[pr, :2].mean(axis=0)
+        behind = False
+        for q in ps:
+            if q is p:
+                continue
+            overlap = min(p.u[1], q.u[1]) - max(p.u[0], q.u[0])
+            qr = q.rows[q.rows < len(known)]
+            seen = qr[known[qr]]
+            if overlap < 0.5 * (p.u[1] - p.u[0]) or not len(seen):
+                continue
+            side = np.sign(np.median(origin[seen, :2] @ q.normal + q.offset))
+            behind |= bool(side * (c @ q.normal + q.offset) < -thr)
+        if not behind:
+            out.append(p)
+    return out or ps
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True."""
+    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+def _band_share(occ: np.ndarray, cell: float, band: tuple[float, float]) -> np.ndarray:
+    a, b = int(round(band[0] / cell)), max(int(round(band[1] / cell)), int(round(band[0] / cell)) + 1)
+    b = min(b, occ.shape[1])
+    if a >= b:
+        return np.full(occ.shape[0], np.nan)
+    return occ[:, a:b].mean(axis=1)
+
+
+def _local_line(xy: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, float]:
+    """The line through wall points (principal direction), its normal turned like `normal`."""
+    centre = xy.mean(axis=0)
+    if len(xy) >= 3:
+        _, vec = np.linalg.eigh(np.cov((xy - centre).T))
+        n = vec[:, 0]
+        n = n if n @ normal >= 0 else -n
+    else:
+        n = normal
+    return n, float(-n @ centre)
+
+
+def find_openings(model: StructureModel, vmap: VoxelMap, sight: Sightlines) -> list[Opening]:
+    """Every opening in the model's confirmed walls (see the module docstring)."""
+    cfg = model.cfg
+    n = min(model.n, sight.n)
+    if not cfg.openings or not model.has_floor or n == 0 or model.outdoor:
+        return []
+    pos = vmap.positions[:n]
+    origin = sight.origins[:n].astype(np.float64)
+    known = np.isfinite(origin).all(axis=1)
+    found: list[Opening] = []
+    for line in _lines(model):  # one iteration per wall line
+        ps = _face_pieces([model.pieces[i] for i in line], pos, origin, known, cfg.plane_threshold_m)
+        rows = np.concatenate([p.rows for p in ps])
+        rows = rows[rows < n]
+        if len(rows) < cfg.wall_piece_min_voxels:
+            continue
+        big = max(ps, key=lambda p: len(p.rows))
+        normal = big.normal
+        t = np.array([-normal[1], normal[0]])
+        xy = pos[rows, :2]
+        storey = model.storey(xy.mean(axis=0), float(np.median(model.sensor_z[rows])))
+        if storey is None:
+            continue
+        zf = storey[0]
+        u = xy @ t
+        h = pos[rows, 2] - zf
+        top = min(float(np.percentile(h, 99)), storey[1] - zf)
+        cell = cfg.opening_cell_m
+        u0 = float(u.min())
+        nu, nh = int((u.max() - u0) / cell) + 1, max(int(top / cell), 1)
+        ok = (h >= 0) & (h < nh * cell)
+        occ = np.zeros((nu, nh), bool)
+        occ[((u[ok] - u0) / cell).astype(np.int64), (h[ok] / cell).astype(np.int64)] = True
+        occ[:, 1:-1] |= occ[:, :-2] & occ[:, 2:]  # a scan line's gap between two lines of the wall
+        low = _band_share(occ, cell, _LOW_BAND)
+        high = _band_share(occ, cell, (_HIGH_BAND[0], min(_HIGH_BAND[1], top)))
+        if np.isnan(high).all() or np.isnan(low).all():
+            continue
+        if top < _HIGH_BAND[1]:
+            continue  # a face seen no higher than furniture (a desk's side, a shelf's back)
+        walled = high >= _WALL_SHARE
+        for a, b in _runs(~walled):  # one iteration per gap in the wall's upper part
+            if a == 0 or b == nu or np.mean(high[a:b]) >= _EMPTY_SHARE:
+                continue  # bounded by wall on both sides, and mostly empty
+            sill = bool(np.median(low[a:b]) >= _WALL_SHARE)  # wall under it: a window
+            span = (u0 + a * cell, u0 + b * cell)
+            op = _opening(model, pos, origin, known, rows, u, h, span, sill, zf, top, normal)
+            if op is not None:
+                found.append(op)
+    return found
+
+
+def _opening(
+    model: StructureModel,
+    pos: np.ndarray,
+    origin: np.ndarray,
+    known: np.ndarray,
+    rows: np.ndarray,
+    u: np.ndarray,
+    h: np.ndarray,
+    span: tuple[float, float],
+    sill: bool,
+    zf: float,
+    top: float,
+    line_normal: np.ndarray,
+) -> Opening | None:
+    """The gap `span` along a line as an opening, if the sensor saw through it, else None. A window where wall
+    stands under it (`sill`) or where the sensor saw through it only above a sill height (the wall under a
+    window is often hidden by a desk), else a door."""
+    cfg = model.cfg
+    ua, ub = span
+    margin = cfg.opening_cell_m
+    inside = (u >= ua) & (u < ub)
+    over = h[inside & (h > _HIGH_BAND[1])]
+    z1 = float(np.percentile(over, 10)) if len(over) >= 3 else top  # the wall's underside over it
+    # the face of the gap: the line of the wall's voxels just beside it
+    near = rows[((u > ua - _LOCAL_M) & (u < ua)) | ((u >= ub) & (u < ub + _LOCAL_M))]
+    normal, offset = _local_line(pos[near, :2], line_normal)
+    t = np.array([-normal[1], normal[0]])
+    side = np.sign(np.median(origin[near[known[near]], :2] @ normal + offset)) if known[near].any() else 0.0
+    if side == 0:
+        return None
+    d = side * (pos[:, :2] @ normal + offset)  # > 0 on the side the wall was seen from
+    ds = side * (origin[:, :2] @ normal + offset)
+    uu = pos[:, :2] @ t
+    hh = pos[:, 2] - zf
+    # seen through: rays whose return lies behind the face and that crossed it inside the gap
+    idx = np.flatnonzero(known & (d < -cfg.plane_threshold_m) & (ds > 0))
+    f = ds[idx] / (ds[idx] - d[idx])
+    cross = origin[idx] + f[:, None] * (pos[idx] - origin[idx])
+    cu, ch = cross[:, :2] @ t, cross[:, 2] - zf
+    hit = (cu > ua + margin) & (cu < ub - margin) & (ch > margin) & (ch < z1 - margin)
+    cols = int(round((ub - ua) / margin))
+    if cols < 1 or not hit.any():
+        _dbg(f"gap {ua:.1f}..{ub:.1f} no hits; behind {len(idx)}")
+        return None
+    seen = len(np.unique(np.clip(((cu[hit] - ua) / margin).astype(np.int64), 0, cols - 1))) / cols
+    _dbg(f"gap {ua:.1f}..{ub:.1f} w={ub-ua:.1f} sill={sill} z1={z1:.2f} seen={seen:.2f} hits={hit.sum()} low<{np.mean(ch[hit] < cfg.sill_min_m):.2f} p5={np.percentile(ch[hit],5):.2f}")
+    if seen < cfg.opening_min_seen:
+        return None  # a shadow on the wall, not a hole in it
+    through = ch[hit]
+    if sill:
+        under = h[inside & (h < _HIGH_BAND[0])]
+        z0 = float(np.percentile(under, 90)) if len(under) else float(np.percentile(through, 5))
+    else:  # the lowest rays through a door pass under any sill (a sensor at 1 m sees the floor beyond it)
+        z0 = float(np.percentile(through, 5))
+        z0 = 0.0 if z0 < cfg.sill_min_m else z0
+    kind = Kind.DOOR if z0 < cfg.sill_min_m else Kind.WINDOW
+    lo_w, hi_w = (
+        (cfg.door_min_width_m, cfg.door_max_width_m) if kind is Kind.DOOR else (cfg.window_min_width_m, cfg.window_max_width_m)
+    )
+    if not lo_w <= ub - ua <= hi_w or z0 > cfg.sill_max_m or z1 - z0 < cfg.opening_min_height_m:
+        return None
+    # its voxels: near the face inside it (frames, glass, a closed leaf), and a door's open leaf beside a jamb
+    box = (hh > z0 - margin) & (hh < z1 + margin)
+    mine = box & (uu > ua - margin) & (uu < ub + margin) & (d > -cfg.opening_depth_m) & (d < _FRONT_M)
+    if kind is Kind.DOOR:
+        width = ub - ua
+        leaf = box & (hh > cfg.plane_threshold_m) & (np.abs(d) < width + margin)
+        leaf &= (np.abs(uu - ua) < _LEAF_REACH_M) | (np.abs(uu - ub) < _LEAF_REACH_M)
+        leaf &= (uu > ua - margin) & (uu < ub + margin) | (np.abs(d) > _FRONT_M)  # not the wall beside it
+        mine |= leaf
+    out = np.flatnonzero(mine)
+    out = out[~np.isin(model.kind_cls[out], _KEEP)]  # floors, ceilings and columns stay what they are
+    return Opening(model._new_id(), kind, normal, offset, (ua, ub), (zf + z0, zf + z1), seen, out)
+
+
+_KEEP: Final = np.array(
+    [SemanticClass.FLOOR, SemanticClass.CEILING, SemanticClass.COLUMN, SemanticClass.BEAM, SemanticClass.GROUND]
+)
+
+
+def mark_openings(model: StructureModel, openings: list[Opening]) -> np.ndarray:
+    """The openings' voxels take their class (over the wall's: frames and glass stand in its face). Returns
+    the rows whose element changed."""
+    changed = [np.zeros(0, np.int64)]
+    for op in openings:  # one iteration per opening
+        model.elem[op.rows] = op.id
+        model.kind_cls[op.rows] = SemanticClass.WINDOW if op.kind is Kind.WINDOW else SemanticClass.DOOR
+        changed.append(op.rows)
+    return np.concatenate(changed)
+
+
+import os  # noqa: E402  DEBUG
+
+def _dbg(text: str) -> None:
+    if os.environ.get("OPDBG"):
+        print(text)
