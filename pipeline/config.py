@@ -423,6 +423,7 @@ class StructureConfig(_Section):
     window_max_width_m: Positive = 3.5  # ... and at most ...
     sill_min_m: NonNegative = 0.6  # ... its sill (the lowest rays through it) this high above the floor at least ...
     sill_max_m: Positive = 1.5  # ... and at most
+    door_min_height_m: Positive = 1.95  # a door's head stands this high at least (where the map reaches that high)
     opening_min_height_m: Positive = 0.6  # an opening's height seen, at least
     opening_max_width_m: Positive = 3.5  # wall pieces this far apart along one line may bound one opening
     opening_min_seen: Fraction = 0.3  # the sensor saw through this share of an opening's width (not a shadow)

@@ -104,7 +104,7 @@ def test_a_door_and_a_window_are_found_with_their_size_and_the_hidden_stretch_is
 
 
 def test_without_the_rays_through_it_a_gap_is_no_opening() -> None:
-    pts, truth = scene()
+    pts, _ = scene()
     behind = pts[:, 1] < -0.02
     model, vmap, _ = _run(pts[~behind])  # nothing seen through the door: a shadow would look the same
     kinds = [e.kind for e in model.elements(vmap)]

@@ -24,7 +24,6 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from aftershock.pipeline.classes import SemanticClass
-from aftershock.pipeline.config import StructureConfig
 from aftershock.pipeline.structure.elements import Element, Kind
 
 if TYPE_CHECKING:
@@ -36,8 +35,14 @@ _LOW_BAND: Final = (0.15, 0.6)  # heights (above the floor) under any sill ...
 _HIGH_BAND: Final = (1.2, 1.8)  # ... and above any sill, under any door's head
 _WALL_SHARE: Final = 0.3  # a band is wall where this share of its cells hold the wall's voxels ...
 _EMPTY_SHARE: Final = 0.1  # ... and empty under this share
+_END_M: Final = 0.6  # a line's face reaches this far past its pieces' ends (a wall's stub beside a door)
+_BOUND_CELLS: Final = 2  # an opening has this many columns of wall at least on either side
 _FRONT_M: Final = 0.15  # an opening's voxels lie at most this far in front of the face (a frame, a sill board)
 _LEAF_REACH_M: Final = 0.45  # an open leaf lies within this of its jamb along the wall (it swings 65-110 degrees)
+_LEAF_TALL_M: Final = 1.0  # a leaf's cells hold voxels over this height at least (a table's or a chair's do not)
+_LEAF_THICK_M: Final = 0.12  # a leaf's voxels lie this close to its line through the jamb
+_LEAF_MIN_VOXELS: Final = 10
+_JAMB_M: Final = 0.15  # a door's frame and the leaf's edge fill the grid's cells this far into its gap
 
 
 @dataclass(slots=True)
@@ -100,7 +105,7 @@ def _lines(model: StructureModel) -> list[list[int]]:
     proj = np.einsum("ikc,jc->ijk", ends, direction)
     gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
     link = (cos > np.cos(np.radians(cfg.wall_merge_deg))) & (dist < 2.5 * cfg.plane_threshold_m)
-    link &= (dist.T < 2.5 * cfg.plane_threshold_m) & (gap < cfg.opening_max_width_m)
+    link &= (2.5 * cfg.plane_threshold_m > dist.T) & (gap < cfg.opening_max_width_m)
     a, b = np.nonzero(link)
     _, group = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids))), directed=False)
     return [[ids[k] for k in np.flatnonzero(group == g)] for g in range(group.max() + 1)]
@@ -131,6 +136,28 @@ def _face_pieces(ps: list[_Piece], pos: np.ndarray, origin: np.ndarray, known: n
     return out or ps
 
 
+def _face_rows(ps: list[_Piece], pos: np.ndarray, kind_cls: np.ndarray, thr: float) -> np.ndarray:
+    """The voxels in a line's face: its pieces' and those on a piece's plane beside it (a piece's plane
+    drifts from its neighbour's, and a refit leaves some of a face's voxels out)."""
+    n = len(pos)
+    own = np.concatenate([p.rows for p in ps])
+    lo = np.min([pos[p.rows[p.rows < n], :2].min(axis=0) for p in ps if np.any(p.rows < n)], axis=0) - _LOCAL_M
+    hi = np.max([pos[p.rows[p.rows < n], :2].max(axis=0) for p in ps if np.any(p.rows < n)], axis=0) + _LOCAL_M
+    cand = np.flatnonzero(np.all((pos[:, :2] > lo) & (pos[:, :2] < hi), axis=1) & ~np.isin(kind_cls, _KEEP))
+    xy = pos[cand, :2]
+    on = np.zeros(len(cand), bool)
+    for p in ps:  # one iteration per piece of the line
+        along = xy @ np.array([-p.normal[1], p.normal[0]])
+        near = (along > p.u[0] - _LOCAL_M) & (along < p.u[1] + _LOCAL_M)
+        on |= near & (np.abs(xy @ p.normal + p.offset) < thr)
+    # not far past the pieces' ends along the line (there other walls cross its plane)
+    t = np.array([-ps[0].normal[1], ps[0].normal[0]])
+    u_own = pos[own[own < n], :2] @ t
+    u = xy[on] @ t
+    extra = cand[on][(u >= u_own.min() - _END_M) & (u <= u_own.max() + _END_M)]
+    return np.union1d(own[own < n], extra)
+
+
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) of each run of True."""
     d = np.diff(np.r_[0, mask.astype(np.int8), 0])
@@ -138,22 +165,24 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _band_share(occ: np.ndarray, cell: float, band: tuple[float, float]) -> np.ndarray:
-    a, b = int(round(band[0] / cell)), max(int(round(band[1] / cell)), int(round(band[0] / cell)) + 1)
+    a = round(band[0] / cell)
+    b = max(round(band[1] / cell), a + 1)
     b = min(b, occ.shape[1])
     if a >= b:
         return np.full(occ.shape[0], np.nan)
     return occ[:, a:b].mean(axis=1)
 
 
-def _local_line(xy: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, float]:
-    """The line through wall points (principal direction), its normal turned like `normal`."""
-    centre = xy.mean(axis=0)
+def _local_line(xy: np.ndarray, normal: np.ndarray, max_deg: float) -> tuple[np.ndarray, float]:
+    """The line through wall points (their principal direction, its normal turned like `normal`); the line of
+    `normal` through their median where that turns more than `max_deg` (a corner's other wall among them)."""
+    centre = np.median(xy, axis=0)
+    n = normal
     if len(xy) >= 3:
-        _, vec = np.linalg.eigh(np.cov((xy - centre).T))
-        n = vec[:, 0]
-        n = n if n @ normal >= 0 else -n
-    else:
-        n = normal
+        _, vec = np.linalg.eigh(np.cov((xy - xy.mean(axis=0)).T))
+        if abs(vec[:, 0] @ normal) > np.cos(np.radians(max_deg)):
+            n = vec[:, 0] if vec[:, 0] @ normal >= 0 else -vec[:, 0]
+            centre = xy.mean(axis=0)
     return n, float(-n @ centre)
 
 
@@ -165,12 +194,11 @@ def find_openings(model: StructureModel, vmap: VoxelMap, sight: Sightlines) -> l
         return []
     pos = vmap.positions[:n]
     origin = sight.origins[:n].astype(np.float64)
-    known = np.isfinite(origin).all(axis=1)
+    known = np.asarray(np.isfinite(origin).all(axis=1))
     found: list[Opening] = []
     for line in _lines(model):  # one iteration per wall line
         ps = _face_pieces([model.pieces[i] for i in line], pos, origin, known, cfg.plane_threshold_m)
-        rows = np.concatenate([p.rows for p in ps])
-        rows = rows[rows < n]
+        rows = _face_rows(ps, pos, model.kind_cls[:n], cfg.plane_threshold_m)
         if len(rows) < cfg.wall_piece_min_voxels:
             continue
         big = max(ps, key=lambda p: len(p.rows))
@@ -189,7 +217,9 @@ def find_openings(model: StructureModel, vmap: VoxelMap, sight: Sightlines) -> l
         nu, nh = int((u.max() - u0) / cell) + 1, max(int(top / cell), 1)
         ok = (h >= 0) & (h < nh * cell)
         occ = np.zeros((nu, nh), bool)
-        occ[((u[ok] - u0) / cell).astype(np.int64), (h[ok] / cell).astype(np.int64)] = True
+        occ[np.floor((u[ok] - u0) / cell + 1e-6).astype(np.int64), np.floor(h[ok] / cell + 1e-6).astype(np.int64)] = (
+            True
+        )
         occ[:, 1:-1] |= occ[:, :-2] & occ[:, 2:]  # a scan line's gap between two lines of the wall
         low = _band_share(occ, cell, _LOW_BAND)
         high = _band_share(occ, cell, (_HIGH_BAND[0], min(_HIGH_BAND[1], top)))
@@ -198,9 +228,12 @@ def find_openings(model: StructureModel, vmap: VoxelMap, sight: Sightlines) -> l
         if top < _HIGH_BAND[1]:
             continue  # a face seen no higher than furniture (a desk's side, a shelf's back)
         walled = high >= _WALL_SHARE
+        walled[1:-1] |= walled[:-2] & walled[2:]  # one column between scan lines or cells
         for a, b in _runs(~walled):  # one iteration per gap in the wall's upper part
-            if a == 0 or b == nu or np.mean(high[a:b]) >= _EMPTY_SHARE:
-                continue  # bounded by wall on both sides, and mostly empty
+            if a < _BOUND_CELLS or b + _BOUND_CELLS > nu or np.mean(high[a:b]) >= _EMPTY_SHARE:
+                continue
+            if not (walled[a - _BOUND_CELLS : a].all() and walled[b : b + _BOUND_CELLS].all()):
+                continue  # bounded by wall on both sides (not by another wall crossing the line past its end)
             sill = bool(np.median(low[a:b]) >= _WALL_SHARE)  # wall under it: a window
             span = (u0 + a * cell, u0 + b * cell)
             op = _opening(model, pos, origin, known, rows, u, h, span, sill, zf, top, normal)
@@ -234,7 +267,7 @@ def _opening(
     z1 = float(np.percentile(over, 10)) if len(over) >= 3 else top  # the wall's underside over it
     # the face of the gap: the line of the wall's voxels just beside it
     near = rows[((u > ua - _LOCAL_M) & (u < ua)) | ((u >= ub) & (u < ub + _LOCAL_M))]
-    normal, offset = _local_line(pos[near, :2], line_normal)
+    normal, offset = _local_line(pos[near, :2], line_normal, cfg.wall_merge_deg)
     t = np.array([-normal[1], normal[0]])
     side = np.sign(np.median(origin[near[known[near]], :2] @ normal + offset)) if known[near].any() else 0.0
     if side == 0:
@@ -249,39 +282,96 @@ def _opening(
     cross = origin[idx] + f[:, None] * (pos[idx] - origin[idx])
     cu, ch = cross[:, :2] @ t, cross[:, 2] - zf
     hit = (cu > ua + margin) & (cu < ub - margin) & (ch > margin) & (ch < z1 - margin)
-    cols = int(round((ub - ua) / margin))
+    cols = round((ub - ua) / margin)
     if cols < 1 or not hit.any():
-        _dbg(f"gap {ua:.1f}..{ub:.1f} no hits; behind {len(idx)}")
         return None
     seen = len(np.unique(np.clip(((cu[hit] - ua) / margin).astype(np.int64), 0, cols - 1))) / cols
-    _dbg(f"gap {ua:.1f}..{ub:.1f} w={ub-ua:.1f} sill={sill} z1={z1:.2f} seen={seen:.2f} hits={hit.sum()} low<{np.mean(ch[hit] < cfg.sill_min_m):.2f} p5={np.percentile(ch[hit],5):.2f}")
     if seen < cfg.opening_min_seen:
         return None  # a shadow on the wall, not a hole in it
     through = ch[hit]
     if sill:
         under = h[inside & (h < _HIGH_BAND[0])]
         z0 = float(np.percentile(under, 90)) if len(under) else float(np.percentile(through, 5))
+        if z0 < cfg.sill_min_m:
+            return None  # a low wall (a broken wall's stump, a parapet), not an opening
     else:  # the lowest rays through a door pass under any sill (a sensor at 1 m sees the floor beyond it)
         z0 = float(np.percentile(through, 5))
         z0 = 0.0 if z0 < cfg.sill_min_m else z0
     kind = Kind.DOOR if z0 < cfg.sill_min_m else Kind.WINDOW
     lo_w, hi_w = (
-        (cfg.door_min_width_m, cfg.door_max_width_m) if kind is Kind.DOOR else (cfg.window_min_width_m, cfg.window_max_width_m)
+        (cfg.door_min_width_m, cfg.door_max_width_m)
+        if kind is Kind.DOOR
+        else (cfg.window_min_width_m, cfg.window_max_width_m)
     )
     if not lo_w <= ub - ua <= hi_w or z0 > cfg.sill_max_m or z1 - z0 < cfg.opening_min_height_m:
         return None
+    if kind is Kind.DOOR and z1 < min(cfg.door_min_height_m, top - margin):
+        return None  # a gap under a head lower than a door's: between furniture, under a shelf
     # its voxels: near the face inside it (frames, glass, a closed leaf), and a door's open leaf beside a jamb
     box = (hh > z0 - margin) & (hh < z1 + margin)
-    mine = box & (uu > ua - margin) & (uu < ub + margin) & (d > -cfg.opening_depth_m) & (d < _FRONT_M)
+    reach = _JAMB_M if kind is Kind.DOOR else margin
+    mine = box & (uu > ua - reach) & (uu < ub + reach) & (d > -cfg.opening_depth_m) & (d < _FRONT_M)
     if kind is Kind.DOOR:
-        width = ub - ua
-        leaf = box & (hh > cfg.plane_threshold_m) & (np.abs(d) < width + margin)
-        leaf &= (np.abs(uu - ua) < _LEAF_REACH_M) | (np.abs(uu - ub) < _LEAF_REACH_M)
-        leaf &= (uu > ua - margin) & (uu < ub + margin) | (np.abs(d) > _FRONT_M)  # not the wall beside it
-        mine |= leaf
+        mine |= _leaf(model, pos, np.flatnonzero(box & (np.abs(d) > _FRONT_M)), uu, d, hh, (ua, ub))
     out = np.flatnonzero(mine)
     out = out[~np.isin(model.kind_cls[out], _KEEP)]  # floors, ceilings and columns stay what they are
     return Opening(model._new_id(), kind, normal, offset, (ua, ub), (zf + z0, zf + z1), seen, out)
+
+
+def _leaf(
+    model: StructureModel,
+    pos: np.ndarray,
+    cand: np.ndarray,
+    uu: np.ndarray,
+    d: np.ndarray,
+    hh: np.ndarray,
+    span: tuple[float, float],
+) -> np.ndarray:
+    """A door's open leaf: a thin upright panel from one of its jambs, swung out to either side (a mask over
+    the map). Of the tall cells (of one voxel, standing `_LEAF_TALL_M` high at least) within the door's width of
+    a jamb, those along one direction from it, in a strip no wider than `_LEAF_THICK_M` (a column or a cabinet
+    beside a door is wide, a leaf is not)."""
+    out = np.zeros(len(pos), bool)
+    ua, ub = span
+    width = ub - ua + 2 * _JAMB_M
+    cand = cand[~np.isin(model.kind_cls[cand], _KEEP)]
+    cand = cand[~np.isin(model.elem[cand], _wide_wall_pieces(model, width + _LEAF_REACH_M))]  # a wall at a corner
+    for jamb, sign in ((ua - _JAMB_M / 2, 1.0), (ub + _JAMB_M / 2, -1.0)):  # one iteration per jamb
+        for side in (1.0, -1.0):  # and per side of the wall
+            du, dd = sign * (uu[cand] - jamb), side * d[cand]
+            r = np.hypot(du, dd)
+            near = cand[(dd > 0) & (r < width) & (du > -_LEAF_REACH_M) & (du < _LEAF_REACH_M)]
+            if len(near) < _LEAF_MIN_VOXELS:
+                continue
+            cell = np.floor(pos[near, :2] / model.voxel).astype(np.int64)
+            keys, inv = np.unique(cell, axis=0, return_inverse=True)
+            inv = inv.ravel()
+            lo, hi = np.full(len(keys), np.inf), np.full(len(keys), -np.inf)
+            np.minimum.at(lo, inv, hh[near])
+            np.maximum.at(hi, inv, hh[near])
+            tall = near[(hi - lo)[inv] >= _LEAF_TALL_M]
+            if len(tall) < _LEAF_MIN_VOXELS:
+                continue
+            du_t, dd_t = sign * (uu[tall] - jamb), side * d[tall]
+            angle = np.arctan2(dd_t, du_t)
+            a = float(np.median(angle))
+            across = -np.sin(a) * du_t + np.cos(a) * dd_t  # off the leaf's line through the jamb
+            on = np.abs(across) < _LEAF_THICK_M
+            if on.mean() < 0.7 or np.ptp(np.hypot(du_t, dd_t)[on]) < 0.5 * (ub - ua):
+                continue  # not one thin panel reaching across most of the door's width
+            out[tall[on]] = True
+    return out
+
+
+def _wide_wall_pieces(model: StructureModel, width: float) -> np.ndarray:
+    """Ids of the pieces of confirmed walls wider than `width` (a leaf may be taken for a narrow wall)."""
+    lo: dict[int, float] = {}
+    hi: dict[int, float] = {}
+    for pid, wall in model.wall_of_piece.items():  # one iteration per wall piece
+        p = model.pieces[pid]
+        lo[wall], hi[wall] = min(lo.get(wall, np.inf), p.u[0]), max(hi.get(wall, -np.inf), p.u[1])
+    wide = [pid for pid, wall in model.wall_of_piece.items() if hi[wall] - lo[wall] > width]
+    return np.array(wide, np.int64)
 
 
 _KEEP: Final = np.array(
@@ -298,10 +388,3 @@ def mark_openings(model: StructureModel, openings: list[Opening]) -> np.ndarray:
         model.kind_cls[op.rows] = SemanticClass.WINDOW if op.kind is Kind.WINDOW else SemanticClass.DOOR
         changed.append(op.rows)
     return np.concatenate(changed)
-
-
-import os  # noqa: E402  DEBUG
-
-def _dbg(text: str) -> None:
-    if os.environ.get("OPDBG"):
-        print(text)
