@@ -4,6 +4,7 @@ the sensor saw through; a stretch of wall hidden behind furniture is not an open
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from aftershock.pipeline.classes import SemanticClass
 from aftershock.pipeline.config import Environment, StructureConfig
@@ -111,3 +112,14 @@ def test_without_the_rays_through_it_a_gap_is_no_opening() -> None:
     assert Kind.DOOR not in kinds and Kind.WINDOW in kinds
     model, vmap, _ = _run(pts, StructureConfig(openings=False))
     assert not [e for e in model.elements(vmap) if e.kind in (Kind.WINDOW, Kind.DOOR)]
+
+
+@pytest.mark.parametrize(
+    "value", ["structure.opening_min_seen=1.5", "structure.door_min_width_m=0", "structure.sill_min_m=-0.1"]
+)
+def test_an_opening_setting_out_of_range_names_itself(value: str) -> None:
+    from aftershock.pipeline.config import load_config
+    from aftershock.pipeline.errors import InputError
+
+    with pytest.raises(InputError, match=value.split("=")[0]):
+        load_config(None, [value])
