@@ -102,6 +102,7 @@ def test_a_door_and_a_window_are_found_with_their_size_and_the_hidden_stretch_is
     # and they go to the outputs as elements with a plane
     doc = door.to_json()
     assert doc["kind"] == "door" and doc["class_id"] == C.DOOR and len(doc["plane"]) == 4
+    assert {e.kind: e.class_id for e in model.elements(vmap)}[Kind.CEILING] == C.CEILING  # class 0 too
 
 
 def test_without_the_rays_through_it_a_gap_is_no_opening() -> None:

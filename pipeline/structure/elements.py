@@ -52,7 +52,7 @@ class Element:
 
     @property
     def class_id(self) -> int:
-        return int(CLASS_OF.get(self.kind) or OPENING_CLASS[self.kind])
+        return int(CLASS_OF[self.kind] if self.kind in CLASS_OF else OPENING_CLASS[self.kind])
 
     def outline(self) -> np.ndarray:
         """(5, 3) closed outline of a slab (its extent on its plane), a wall (its face between its ends) or an
