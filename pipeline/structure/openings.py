@@ -37,6 +37,7 @@ _WALL_SHARE: Final = 0.3  # a band is wall where this share of its cells hold th
 _EMPTY_SHARE: Final = 0.1  # ... and empty under this share
 _END_M: Final = 0.6  # a line's face reaches this far past its pieces' ends (a wall's stub beside a door)
 _BOUND_CELLS: Final = 2  # an opening has this many columns of wall at least on either side
+_FACE_MAX_SHARE: Final = 0.3  # a gap's face holds voxels in at most this share of its cells
 _FRONT_M: Final = 0.15  # an opening's voxels lie at most this far in front of the face (a frame, a sill board)
 _LEAF_REACH_M: Final = 0.45  # an open leaf lies within this of its jamb along the wall (it swings 65-110 degrees)
 _LEAF_TALL_M: Final = 1.0  # a leaf's cells hold voxels over this height at least (a table's or a chair's do not)
@@ -307,7 +308,14 @@ def _opening(
         return None
     if kind is Kind.DOOR and z1 < min(cfg.door_min_height_m, top - margin):
         return None  # a gap under a head lower than a door's: between furniture, under a shelf
-    # its voxels: near the face inside it (frames, glass, a closed leaf), and a door's open leaf beside a jamb
+    inner = (hh > z0 + margin) & (hh < z1 - margin) & (uu > ua + margin) & (uu < ub - margin)
+    face = np.flatnonzero(inner & (d > -cfg.plane_threshold_m) & (d < _FRONT_M))
+    if len(face):  # a face across the gap (the wall's, drifted from the line beside it): no hole in it
+        cells = np.unique(np.floor(np.c_[uu[face], hh[face]] / margin).astype(np.int64), axis=0)
+        if len(cells) > _FACE_MAX_SHARE * cols * max((z1 - z0) / margin - 2, 1):
+            return None
+    # its voxels: near the face inside it and at its edges (frames, glass, a closed leaf), and a door's open
+    # leaf beside a jamb
     box = (hh > z0 - margin) & (hh < z1 + margin)
     reach = _JAMB_M if kind is Kind.DOOR else margin
     mine = box & (uu > ua - reach) & (uu < ub + reach) & (d > -cfg.opening_depth_m) & (d < _FRONT_M)
