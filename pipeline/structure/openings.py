@@ -30,6 +30,9 @@ if TYPE_CHECKING:
     from aftershock.pipeline.structure.model import StructureModel, _Piece
     from aftershock.pipeline.voxel_map import VoxelMap
 
+_LINK: Final = 2.0  # pieces of a line lie within this many plane thresholds of each other's planes (glass
+# set back in a window's reveal, 0.12 m and more behind, does not)
+_BEYOND_M: Final = 0.25  # a return this far behind the face lies past the wall's thickness: the room beyond
 _LOCAL_M: Final = 1.5  # a gap's face is the line fitted to the wall's voxels this far on both sides of it
 _LOW_BAND: Final = (0.15, 0.6)  # heights (above the floor) under any sill ...
 _HIGH_BAND: Final = (1.2, 1.8)  # ... and above any sill, under any door's head
@@ -105,8 +108,8 @@ def _lines(model: StructureModel) -> list[list[int]]:
     ends = np.stack([centre + direction * (u[:, :1] - mid[:, None]), centre + direction * (u[:, 1:] - mid[:, None])], 1)
     proj = np.einsum("ikc,jc->ijk", ends, direction)
     gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
-    link = (cos > np.cos(np.radians(cfg.wall_merge_deg))) & (dist < 2.5 * cfg.plane_threshold_m)
-    link &= (2.5 * cfg.plane_threshold_m > dist.T) & (gap < cfg.opening_max_width_m)
+    link = (cos > np.cos(np.radians(cfg.wall_merge_deg))) & (dist < _LINK * cfg.plane_threshold_m)
+    link &= (_LINK * cfg.plane_threshold_m > dist.T) & (gap < cfg.opening_max_width_m)
     a, b = np.nonzero(link)
     _, group = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids))), directed=False)
     return [[ids[k] for k in np.flatnonzero(group == g)] for g in range(group.max() + 1)]
@@ -295,9 +298,12 @@ def _opening(
         z0 = float(np.percentile(under, 90)) if len(under) else float(np.percentile(through, 5))
         if z0 < cfg.sill_min_m:
             return None  # a low wall (a broken wall's stump, a parapet), not an opening
-    else:  # the lowest rays through a door pass under any sill (a sensor at 1 m sees the floor beyond it)
-        z0 = float(np.percentile(through, 5))
-        z0 = 0.0 if z0 < cfg.sill_min_m else z0
+    else:  # the lowest rays through a door to the room beyond pass under any sill (a sensor at 1 m sees its floor)
+        beyond = hit & (d[idx] < -_BEYOND_M)
+        low = len(np.flatnonzero(beyond)) >= 3 and float(np.percentile(ch[beyond], 5)) < cfg.sill_min_m
+        z0 = 0.0 if low else float(np.percentile(through, 5))
+        if not low and z0 < cfg.sill_min_m:
+            return None  # seen through low down only in the reveal (a face drifted behind the line): unsure
     kind = Kind.DOOR if z0 < cfg.sill_min_m else Kind.WINDOW
     lo_w, hi_w = (
         (cfg.door_min_width_m, cfg.door_max_width_m)
