@@ -46,6 +46,8 @@ _LEAF_REACH_M: Final = 0.45  # an open leaf lies within this of its jamb along t
 _LEAF_TALL_M: Final = 1.0  # a leaf's cells hold voxels over this height at least (a table's or a chair's do not)
 _LEAF_THICK_M: Final = 0.12  # a leaf's voxels lie this close to its line through the jamb
 _LEAF_MIN_VOXELS: Final = 10
+_LEAF_EXTRA_M: Final = 0.4  # a leaf reaches this much farther than the gap is wide (frames and its edge narrow the gap)
+_LEAF_ON_SHARE: Final = 0.5  # of the tall cells near a jamb, this share at least on one line (a leaf seen on both faces)
 _JAMB_M: Final = 0.15  # a door's frame and the leaf's edge fill the grid's cells this far into its gap
 
 
@@ -347,7 +349,7 @@ def _leaf(
     beside a door is wide, a leaf is not)."""
     out = np.zeros(len(pos), bool)
     ua, ub = span
-    width = ub - ua + 2 * _JAMB_M
+    width = ub - ua + 2 * _JAMB_M + _LEAF_EXTRA_M
     cand = cand[~np.isin(model.kind_cls[cand], _KEEP)]
     cand = cand[~np.isin(model.elem[cand], _wide_wall_pieces(model, width + _LEAF_REACH_M))]  # a wall at a corner
     for jamb, sign in ((ua - _JAMB_M / 2, 1.0), (ub + _JAMB_M / 2, -1.0)):  # one iteration per jamb
@@ -371,7 +373,7 @@ def _leaf(
             a = float(np.median(angle))
             across = -np.sin(a) * du_t + np.cos(a) * dd_t  # off the leaf's line through the jamb
             on = np.abs(across) < _LEAF_THICK_M
-            if on.mean() < 0.7 or np.ptp(np.hypot(du_t, dd_t)[on]) < 0.5 * (ub - ua):
+            if on.mean() < _LEAF_ON_SHARE or np.ptp(np.hypot(du_t, dd_t)[on]) < 0.5 * (ub - ua):
                 continue  # not one thin panel reaching across most of the door's width
             out[tall[on]] = True
     return out
