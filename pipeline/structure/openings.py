@@ -47,7 +47,7 @@ _LEAF_TALL_M: Final = 1.0  # a leaf's cells hold voxels over this height at leas
 _LEAF_THICK_M: Final = 0.12  # a leaf's voxels lie this close to its line through the jamb
 _LEAF_MIN_VOXELS: Final = 10
 _LEAF_EXTRA_M: Final = 0.4  # a leaf reaches this much farther than the gap is wide (frames and its edge narrow the gap)
-_LEAF_ON_SHARE: Final = 0.5  # of the tall cells near a jamb, this share at least on one line (a leaf seen on both faces)
+_LEAF_ON_SHARE: Final = 0.5  # of the tall cells near a jamb, this share on one line at least (both faces seen)
 _JAMB_M: Final = 0.15  # a door's frame and the leaf's edge fill the grid's cells this far into its gap
 
 
