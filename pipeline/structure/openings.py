@@ -40,6 +40,7 @@ _WALL_SHARE: Final = 0.3  # a band is wall where this share of its cells hold th
 _EMPTY_SHARE: Final = 0.1  # ... and empty under this share
 _END_M: Final = 0.6  # a line's face reaches this far past its pieces' ends (a wall's stub beside a door)
 _BOUND_CELLS: Final = 2  # an opening has this many columns of wall at least on either side
+_BESIDE_TOP_M: Final = 0.5  # the wall beside an opening reaches this close to the top of the wall's face at least
 _FACE_MAX_SHARE: Final = 0.3  # a gap's face holds voxels in at most this share of its cells
 _FRONT_M: Final = 0.15  # an opening's voxels lie at most this far in front of the face (a frame, a sill board)
 _LEAF_REACH_M: Final = 0.45  # an open leaf lies within this of its jamb along the wall (it swings 65-110 degrees)
@@ -240,6 +241,10 @@ def find_openings(model: StructureModel, vmap: VoxelMap, sight: Sightlines) -> l
                 continue
             if not (walled[a - _BOUND_CELLS : a].all() and walled[b : b + _BOUND_CELLS].all()):
                 continue  # bounded by wall on both sides (not by another wall crossing the line past its end)
+            beside = np.r_[a - _BOUND_CELLS : a, b : b + _BOUND_CELLS]
+            tops = (nh - 1 - np.argmax(occ[beside, ::-1], axis=1)) * cell  # the faces' highest cells
+            if float(np.median(tops)) < top - _BESIDE_TOP_M:
+                continue  # the faces beside it stop short of the wall's top: furniture side by side, not a wall
             sill = bool(np.median(low[a:b]) >= _WALL_SHARE)  # wall under it: a window
             span = (u0 + a * cell, u0 + b * cell)
             op = _opening(model, pos, origin, known, rows, u, h, span, sill, zf, top, normal)
