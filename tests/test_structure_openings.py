@@ -3,6 +3,8 @@ the sensor saw through; a stretch of wall hidden behind furniture is not an open
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -124,3 +126,22 @@ def test_an_opening_setting_out_of_range_names_itself(value: str) -> None:
 
     with pytest.raises(InputError, match=value.split("=")[0]):
         load_config(None, [value])
+
+
+def test_the_openings_go_to_the_recording_as_outlines_in_their_walls(tmp_path: Path) -> None:
+    import rerun as rr
+    from rrd_read import read_rrd
+
+    from aftershock.sinks.structure_layer import log_structure
+
+    pts, _ = scene()
+    model, vmap, _ = _run(pts)
+    rec = rr.RecordingStream("aftershock-test")
+    path = tmp_path / "structure.rrd"
+    rec.save(str(path))
+    log_structure(rec, model.elements(vmap))
+    rec.flush()
+    rec.disconnect()
+    got = read_rrd(path)
+    assert "world/structure/openings" in got.under("world/structure")
+    assert any("LineStrips3D:strips" in c for c in got.components("world/structure/openings"))
