@@ -419,6 +419,20 @@ class StructureConfig(_Section):
     skip_explained: bool = True
     # ... in logs with colour too (off: there it cost the validation missions a point of mean IoU and 2 of NMI)
     skip_with_colour: bool = False
+    # openings (pipeline.structure.openings): gaps in a wall's face the sensor saw through
+    openings: bool = True
+    opening_cell_m: Positive = 0.1  # the wall's occupancy grid (along it, height above the floor)
+    door_min_width_m: Positive = 0.5  # a door is a gap from the floor up this wide at least ...
+    door_max_width_m: Positive = 2.5  # ... and at most
+    window_min_width_m: Positive = 0.4  # a window is a gap over a sill this wide at least ...
+    window_max_width_m: Positive = 3.5  # ... and at most ...
+    sill_min_m: NonNegative = 0.6  # ... its sill (the lowest rays through it) this high above the floor at least ...
+    sill_max_m: Positive = 1.5  # ... and at most
+    door_min_height_m: Positive = 1.95  # a door's head stands this high at least (where the map reaches that high)
+    opening_min_height_m: Positive = 0.6  # an opening's height seen, at least
+    opening_max_width_m: Positive = 3.5  # wall pieces this far apart along one line may bound one opening
+    opening_min_seen: Fraction = 0.3  # the sensor saw through this share of an opening's width (not a shadow)
+    opening_depth_m: Positive = 0.35  # an opening's voxels (frames, glass) lie at most this far behind the face
 
 
 class Config(_Section):

@@ -34,6 +34,7 @@ from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticCla
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
+from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 
@@ -204,6 +205,8 @@ class StructureModel:
         self.dirty: list[np.ndarray] = []  # rows fused since the last `apply`
         self.last_applied = 0  # rows the last `apply` wrote
         self.support_counts: np.ndarray | None = None  # voxels per element id at the last fusion (see `_support`)
+        self.sight = Sightlines()  # where the sensor stood for each voxel (`observe`), for the openings
+        self.openings: list[Opening] = []
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -334,6 +337,7 @@ class StructureModel:
         self.slab_search_n = 0
         self.final = True
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
+        self._find_openings(vmap)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
     def apply(self, vmap: VoxelMap, rewritten: np.ndarray | None = None) -> None:
@@ -362,6 +366,19 @@ class StructureModel:
         vmap.scores[rows] = np.where(on, self.fused_score[rows], self.lab_score[rows])
         self.shown_cls[rows] = fused
         self.shown_score[rows] = np.where(on, self.fused_score[rows], 0.0)
+
+    def observe(self, vmap: VoxelMap, origin: np.ndarray) -> None:
+        """The voxels opened since the last call were seen from a sensor at `origin` (levelled map frame)."""
+        self.sight.observe(len(vmap), origin)
+
+    def _find_openings(self, vmap: VoxelMap) -> None:
+        """Windows and doors in the walls found (pipeline.structure.openings), their voxels taking their class."""
+        for op in self.openings:  # one iteration per opening found before
+            mine = op.rows[self.elem[op.rows] == op.id]
+            self.elem[mine] = -1
+            self.kind_cls[mine] = UNLABELLED
+        self.openings = find_openings(self, vmap, self.sight)
+        mark_openings(self, self.openings)
 
     def _add_rows(self, vmap: VoxelMap, rows: np.ndarray) -> None:
         pos = vmap.positions[rows]
@@ -1043,6 +1060,7 @@ class StructureModel:
         out.extend(
             Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
         )
+        out.extend(op.element() for op in self.openings)
         if self.outdoor and np.any(self.kind_cls[: self.n] == SemanticClass.GROUND) and vmap is not None:
             g = vmap.positions[: self.n][self.kind_cls[: self.n] == SemanticClass.GROUND]
             out.append(Element(0, Kind.GROUND, g.min(axis=0), g.max(axis=0)))

@@ -15,6 +15,7 @@ from aftershock.pipeline.voxel_map import VoxelMap
 
 def structure_frame(frame: Frame, vmap: VoxelMap, model: StructureModel) -> Frame:
     if frame.pose is not None and np.isfinite(frame.pose).all():
+        model.observe(vmap, frame.pose[:3, 3])
         model.update(vmap, float(frame.pose[2, 3]))
     model.apply(vmap, frame.rewritten)
     kept = frame.map_rows
