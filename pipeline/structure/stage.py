@@ -15,7 +15,7 @@ from aftershock.pipeline.voxel_map import VoxelMap
 
 def structure_frame(frame: Frame, vmap: VoxelMap, model: StructureModel) -> Frame:
     if frame.pose is not None and np.isfinite(frame.pose).all():
-        model.update(vmap, float(frame.pose[2, 3]))
+        model.update(vmap, float(frame.pose[2, 3]), sensor_xy=(float(frame.pose[0, 3]), float(frame.pose[1, 3])))
     model.apply(vmap)
     kept = frame.map_rows
     if frame.labels is not None and kept is not None and len(kept.rows):
