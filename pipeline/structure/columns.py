@@ -360,13 +360,15 @@ def fit_engaged_columns(
 
 
 def along_wall(model: StructureModel, i: int, xy: np.ndarray, reach_m: float) -> float:
-    """Share of the points `xy` within `reach_m` of the plane of a confirmed wall of tile `i`'s block, within
-    its extent (a wall's head seen without its lower part lies along it)."""
+    """Share of the points `xy` (a beam's footprint) within `reach_m` of the line of a confirmed wall piece of
+    tile `i`'s block whose extent it overlaps or continues: a wall's head, where the wall's lower part is hidden
+    or was never seen (the wall piece then ends where its lower part was last seen)."""
     best = np.zeros(len(xy), bool)
     for p in (model.pieces[q] for q in model._block_pieces(i)):  # one iteration per wall piece nearby
         along = xy @ np.array([-p.normal[1], p.normal[0]])
-        on = np.abs(xy @ p.normal + p.offset) < reach_m
-        best |= on & (along > p.u[0] - _WALL_END_M) & (along < p.u[1] + _WALL_END_M)
+        if along.max() < p.u[0] - _WALL_END_M or along.min() > p.u[1] + _WALL_END_M:
+            continue
+        best |= np.abs(xy @ p.normal + p.offset) < reach_m
     return float(best.mean()) if len(xy) else 0.0
 
 
