@@ -3,8 +3,10 @@
 - Free-standing columns: compact footprints occupied over most of the story's height, with nothing tall
   around them but wall planes (a column a hand's width from a wall is still free).
 - Engaged columns (built into a wall or against it, issue #28): a vertical prism proud of a wall's plane, a
-  narrow run along the wall where the surface seen stands off the plane, toward the room, over most of the
-  story's height, with a flat face parallel to the wall (a bookcase against a wall is wider and has no face).
+  narrow run along the wall where the surface seen stands off the plane toward the side the sensor saw it from
+  (the far face of a thin wall is behind the near one), over most of the story's height, with a flat face
+  parallel to the wall, open in front of it, and the wall one clean plane on both sides (a wall seen twice by a
+  drifting registration is not).
 - Beams: elongated footprints hanging just under a ceiling slab, open below, with a flat underside, and not
   along a wall's plane (a wall's head seen without its lower part is not a beam).
 

@@ -13,8 +13,9 @@ Incremental and amortised:
 - walls, columns and beams: per square tile of the map (`tile_m`); a tile is refitted when it gained
   `min_new_voxels`, at most `tiles_per_scan` tiles a scan (the most changed first), every changed tile at
   `finish()`. Walls are vertical RANSAC planes per tile, merged across tiles into walls (coplanar, touching);
-  columns are compact footprints occupied over most of the story's height; beams are elongated footprints
-  occupied just under a ceiling and open below;
+  columns are compact footprints occupied over most of the story's height, or runs proud of a wall's plane
+  (engaged); beams are elongated footprints occupied just under a ceiling, open below, off the walls
+  (`pipeline/structure/columns.py`);
 - new voxels are checked against the elements found so far as they arrive (a vectorised test per element).
 """
 
