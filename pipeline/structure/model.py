@@ -565,12 +565,6 @@ class StructureModel:
     def _fit_columns(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
         fit_columns(self, vmap, i, block, storey)  # free-standing and engaged (pipeline/structure/columns.py)
 
-    def _in_box(self, vmap: VoxelMap, rows: np.ndarray, e: Element) -> np.ndarray:
-        pos = vmap.positions[rows]
-        thr = self.cfg.plane_threshold_m
-        inside = np.all((pos >= e.lo - thr) & (pos <= e.hi + thr), axis=1) & (self.elem[rows] < 0)
-        return rows[inside]
-
     def _fit_beams(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
         fit_beams(self, vmap, i, block, storey)  # under a slab, not a wall's head (pipeline/structure/columns.py)
 
