@@ -13,8 +13,9 @@ Incremental and amortised:
 - walls, columns and beams: per square tile of the map (`tile_m`); a tile is refitted when it gained
   `min_new_voxels`, at most `tiles_per_scan` tiles a scan (the most changed first), every changed tile at
   `finish()`. Walls are vertical RANSAC planes per tile, merged across tiles into walls (coplanar, touching);
-  columns are compact footprints occupied over most of the story's height; beams are elongated footprints
-  occupied just under a ceiling and open below;
+  columns are compact footprints occupied over most of the story's height, or runs proud of a wall's plane
+  (engaged); beams are elongated footprints occupied just under a ceiling, open below, off the walls
+  (`pipeline/structure/columns.py`);
 - new voxels are checked against the elements found so far as they arrive (a vectorised test per element).
 """
 
@@ -26,13 +27,13 @@ from itertools import pairwise
 from typing import Final
 
 import numpy as np
-from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticClass
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
+from aftershock.pipeline.structure.columns import fit_beams, fit_columns
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
 from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
 from aftershock.pipeline.types import Frame
@@ -55,9 +56,6 @@ _MIN_FACE_FILL: Final = 0.4  # ... of its extent at least this share (a strip th
 _SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
 _MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
 _SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its extent (it grows as it is seen)
-_RING_CELLS: Final = 2  # a column stands free: the cells this far around its footprint are mostly empty
-_RING_MAX_SHARE: Final = 0.35
-_LINE_MAX_M: Final = 0.6  # a footprint on one line (one face seen) longer than this is a wall stub
 NON_STRUCTURAL: Final = np.ones(1 << 16, bool)  # per class id: may lie on an element (table, debris, board ...)
 NON_STRUCTURAL[[c.value for c in CLASS_OF.values()]] = False
 NON_STRUCTURAL[UNLABELLED] = False
@@ -679,134 +677,10 @@ class StructureModel:
         return counts.reshape(shape), origin, rows, cell
 
     def _fit_columns(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
-        cfg = self.cfg
-        zf, zc = storey
-        margin = 0.15
-        # occupied from the floor up to the story's head, or as high as a column must reach at least (a scanner
-        # close to the floor sees a column's head only from far away, a ceiling perhaps never)
-        reach = min(zc - zf - 2 * margin, cfg.column_min_height_m)
-        full = max(1.0, reach / self.voxel)
-        counts, origin, rows, _ = self._footprints(vmap, block, zf + margin, zf + margin + reach)
-        if not len(rows):
-            return
-        cover = counts / full
-        tall = cover >= cfg.column_min_cover
-        labels, num = ndimage.label(tall, structure=np.ones((3, 3)))
-        if not num:
-            return
-        occupied = ndimage.binary_dilation(cover >= 0.25)
-        max_cells = cfg.column_max_width_m / self.voxel
-        pieces = [self.pieces[p] for p in self._block_pieces(i)]
-        for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
-            mask = labels[sl] == k
-            size = np.array(mask.shape)
-            if size.max() > max_cells or mask.sum() < 2:
-                continue
-            if size.min() <= 1 and size.max() * self.voxel > _LINE_MAX_M:
-                continue  # one line of cells: a wall stub seen edge-on
-            ring_sl = tuple(slice(max(s.start - _RING_CELLS, 0), s.stop + _RING_CELLS) for s in sl)
-            ring = occupied[ring_sl].copy()
-            inner = np.zeros_like(ring)
-            inner[tuple(slice(s.start - r.start, s.stop - r.start) for s, r in zip(sl, ring_sl, strict=True))] = mask
-            grown = ndimage.binary_dilation(inner, iterations=1)
-            around = ndimage.binary_dilation(inner, iterations=_RING_CELLS) & ~grown
-            if around.sum() and ring[around].mean() > _RING_MAX_SHARE:
-                continue  # attached to something tall (a wall between openings): not free-standing
-            lo_cell = np.array([sl[0].start, sl[1].start]) + origin
-            hi_cell = np.array([sl[0].stop, sl[1].stop]) + origin
-            centre = (lo_cell + hi_cell) / 2 * self.voxel
-            if self._on_wall_line(centre, (hi_cell - lo_cell) * self.voxel, pieces):
-                continue  # a wall's end or the piece between two openings, not a column
-            if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
-                continue  # the tile its centre lies in owns it
-            e = Element(
-                self._new_id(),
-                Kind.COLUMN,
-                np.r_[lo_cell * self.voxel, zf],
-                np.r_[hi_cell * self.voxel, zc],
-                axis=np.array([0.0, 0.0, 1.0]),
-            )
-            self.columns[e.id] = e
-            self.tiles[i].elements.append(e.id)
-            on = self._in_box(vmap, block, e)
-            self.elem[on] = e.id
-            self.kind_cls[on] = SemanticClass.COLUMN
-
-    @staticmethod
-    def _on_wall_line(centre: np.ndarray, size: np.ndarray, pieces: list[_Piece]) -> bool:
-        """Whether a footprint lies on the line of a wall piece, within its extent or just past its ends."""
-        for p in pieces:  # one iteration per wall piece nearby
-            off = abs(float(centre @ p.normal + p.offset))
-            along = float(centre @ np.array([-p.normal[1], p.normal[0]]))
-            if off < 0.5 * float(size.max()) + 0.1 and p.u[0] - _WALL_GAP_M < along < p.u[1] + _WALL_GAP_M:
-                return True
-        return False
-
-    def _in_box(self, vmap: VoxelMap, rows: np.ndarray, e: Element) -> np.ndarray:
-        pos = vmap.positions[rows]
-        thr = self.cfg.plane_threshold_m
-        inside = np.all((pos >= e.lo - thr) & (pos <= e.hi + thr), axis=1) & (self.elem[rows] < 0)
-        return rows[inside]
+        fit_columns(self, vmap, i, block, storey)  # free-standing and engaged (pipeline/structure/columns.py)
 
     def _fit_beams(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
-        cfg = self.cfg
-        zf, zc = storey
-        if not any(s.kind is Kind.CEILING for s in self.slabs):
-            return  # a beam hangs under a slab
-        hang, origin, rows, cell = self._footprints(vmap, block, zc - cfg.beam_max_depth_m, zc - cfg.plane_threshold_m)
-        if not len(rows):
-            return
-        below, b_origin, _, _ = self._footprints(vmap, block, zf + 0.15, zc - cfg.beam_max_depth_m, free_only=False)
-        full = max(1.0, (zc - cfg.beam_max_depth_m - zf - 0.15) / self.voxel)
-        support = np.zeros(hang.shape, np.float64)
-        if below.size:  # the same cells in the grid of what stands below (a wall's head is not a beam)
-            off = b_origin - origin
-            xs, ys = np.nonzero(below)
-            xs, ys = xs + off[0], ys + off[1]
-            ok = (xs >= 0) & (ys >= 0) & (xs < hang.shape[0]) & (ys < hang.shape[1])
-            support[xs[ok], ys[ok]] = below[xs[ok] - off[0], ys[ok] - off[1]] / full
-        cand = (hang > 0) & (support < 0.3)
-        labels, _ = ndimage.label(cand, structure=np.ones((3, 3)))
-        for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
-            xs, ys = np.nonzero(labels[sl] == k)
-            if len(xs) < 3:
-                continue
-            pts = np.c_[xs + sl[0].start, ys + sl[1].start].astype(np.float64) * self.voxel
-            mean = pts.mean(axis=0)
-            _, vec = np.linalg.eigh(np.cov((pts - mean).T) + 1e-9 * np.eye(2))
-            axis = vec[:, 1]
-            along, across = (pts - mean) @ axis, (pts - mean) @ vec[:, 0]
-            length, width = np.ptp(along) + self.voxel, np.ptp(across) + self.voxel
-            if length < cfg.beam_min_length_m or width > cfg.beam_max_width_m:
-                continue
-            if len(xs) * self.voxel**2 < 0.5 * length * width:
-                continue  # not a bar: the corner where two walls meet the ceiling, a lamp's outline
-            centre = mean + origin * self.voxel
-            if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
-                continue
-            members = np.isin(
-                cell[:, 0] * hang.shape[1] + cell[:, 1], (xs + sl[0].start) * hang.shape[1] + ys + sl[1].start
-            )
-            on = rows[members]
-            if not len(on):
-                continue
-            pos = vmap.positions[on]
-            # a beam shows its underside: a flat bottom across most of its footprint (a wall's head does not)
-            bottom = pos[:, 2] < pos[:, 2].min() + 2 * cfg.plane_threshold_m
-            under_cells = len(np.unique(cell[members][bottom], axis=0))
-            if under_cells < 0.5 * len(xs):
-                continue
-            e = Element(
-                self._new_id(),
-                Kind.BEAM,
-                np.r_[pos[:, :2].min(axis=0), pos[:, 2].min()],
-                np.r_[pos[:, :2].max(axis=0), zc],
-                axis=np.r_[axis, 0.0],
-            )
-            self.beams[e.id] = e
-            self.tiles[i].elements.append(e.id)
-            self.elem[on] = e.id
-            self.kind_cls[on] = SemanticClass.BEAM
+        fit_beams(self, vmap, i, block, storey)  # under a slab, not a wall's head (pipeline/structure/columns.py)
 
     def _fit_walls(self, vmap: VoxelMap, i: int, rows: np.ndarray, storey: tuple[float, float] | None) -> None:
         """Vertical planes of a tile, one after another (RANSAC); each a wall piece with its voxels."""
