@@ -41,7 +41,7 @@ def dump(source: str, out: str, overrides: list[str]) -> None:
     np.savez(
         out,
         pos=v.positions[:n], truth=v.true_class_ids[:n], final=v.class_ids[:n], seq=v.first_seq[:n],
-        net=m.net_cls[:n], net_score=m.net_score[:n], sz=m.sensor_z[:n], sxy=m.views.xy[:n], fused=m.fused[:n],
+        net=m.net_cls[:n], net_score=m.net_score[:n], sz=m.sensor_z[:n], origin=m.sight.origins[:n], fused=m.fused[:n],
         voxel=v.voxel_size,
     )  # fmt: skip
 
@@ -57,8 +57,8 @@ def replay(path: str, overrides: list[str]) -> None:
         vmap.insert(d["pos"][a:b])
         vmap.class_ids[a:b] = d["net"][a:b]
         vmap.scores[a:b] = d["net_score"][a:b]
-        xy = d["sxy"][a]
-        model.update(vmap, float(d["sz"][a]), sensor_xy=(float(xy[0]), float(xy[1])))
+        model.observe(vmap, d["origin"][a])
+        model.update(vmap, float(d["sz"][a]))
     model.finish(vmap)
     n = len(vmap)
     network = np.where(d["fused"] == UNLABELLED, d["final"], d["net"])
