@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from aftershock.pipeline.types import Crack, LabelledCloud, Story
+from aftershock.pipeline.types import DamageFound, LabelledCloud
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks import rerun_convert as C
 
@@ -32,21 +32,16 @@ def log_refined(
 
 
 def log_damage(
-    rec: rr.RecordingStream,
-    cracks: list[Crack],
-    crack_points: LabelledCloud | None,
-    stories: list[Story],
-    bounds: tuple[np.ndarray, np.ndarray] | None,
-    static: bool,
+    rec: rr.RecordingStream, found: DamageFound, bounds: tuple[np.ndarray, np.ndarray] | None, static: bool
 ) -> None:
     """Crack points and boxes, and each story's plane over the map's extent (`bounds`) with its drift arrow."""
-    if crack_points is not None and len(crack_points):
-        rec.log(L.CRACK_POINTS, *C.crack_points(crack_points), static=static)
-    if cracks:
-        rec.log(L.CRACKS, C.crack_boxes(cracks), static=static)
-    if not stories:
+    if found.crack_points is not None and len(found.crack_points):
+        rec.log(L.CRACK_POINTS, *C.crack_points(found.crack_points), static=static)
+    if found.cracks:
+        rec.log(L.CRACKS, C.crack_boxes(found.cracks), static=static)
+    if not found.stories:
         return
-    planes, arrows = C.story_layers(stories, bounds)
+    planes, arrows = C.story_layers(found.stories, bounds)
     for index, box, tag in planes:
         rec.log(f"{L.STORIES}/s{index}", box, static=static)
         rec.log(f"{L.STORIES}/s{index}/label", tag, static=static)

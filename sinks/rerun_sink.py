@@ -45,7 +45,6 @@ tiles (`rerun_tiles` decides which changed), `rerun_on_demand` LRGNet's segmenta
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -53,7 +52,7 @@ import rerun as rr
 from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.structure.elements import Element
-from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan, Story
+from aftershock.pipeline.types import DamageFound, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Scan
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks import rerun_convert as C
 from aftershock.sinks.rerun_convert import EmbeddingColors
@@ -159,15 +158,9 @@ class RerunSink(Sink):
         if steps and self._scan is not None:  # the growth steps cleared the scan's times
             self._set_time(self._scan)
 
-    def damage(
-        self,
-        cracks: list[Crack],
-        crack_points: LabelledCloud | None,
-        stories: list[Story],
-        report: dict[str, Any] | None = None,
-    ) -> None:
+    def damage(self, found: DamageFound) -> None:
         self._start()
-        log_damage(self.rec, cracks, crack_points, stories, self._map.bounds, static=self._scan is None)
+        log_damage(self.rec, found, self._map.bounds, static=self._scan is None)
 
     def merges(self, merges: list[InstanceMerge], seq: int) -> None:
         log_merges(self.rec, merges)
