@@ -92,17 +92,20 @@ def open(path_or_uri: str | Path, **options: Any) -> Iterator[Scan]:
 
         options.pop("report", None)  # the simulator has nothing to skip
         return open_simulated(str(path_or_uri), **options)
+    from aftershock.sources.common import ReadOptions
+
+    read = ReadOptions(**options)
     if kind is SourceKind.MCAP:
         from aftershock.sources.mcap_source import open_mcap
 
-        return open_mcap(Path(path_or_uri), **options)
+        return open_mcap(Path(path_or_uri), read)
     if kind is SourceKind.BAG:
         from aftershock.sources.bag import open_bag
 
-        return open_bag(Path(path_or_uri), **options)
+        return open_bag(Path(path_or_uri), read)
     from aftershock.sources.files import open_files
 
-    return open_files(path_or_uri, **options)
+    return open_files(path_or_uri, read)
 
 
 def describe(path_or_uri: str | Path, topic: str | None = None) -> SourceDescription:
