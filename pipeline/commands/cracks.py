@@ -98,8 +98,7 @@ def cracks(
         if points is not None:
             points.instance_ids = result.crack_ids[result.mask].astype("uint32")
         view = cfg.rerun.model_copy(update={"map_voxel_m": result.resolution_m})  # the element as evaluated
-        found = DamageFound(result.cracks, points, report=out)
-        save_recording(save, result.cloud, view, True, found)  # checked above
+        save_recording(save, result.cloud, view, True, DamageFound(result.cracks, points, report=out))  # checked above
         out["recording"] = str(save)
     if report is not None:
         text = json.dumps(out, indent=2)

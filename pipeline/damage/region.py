@@ -18,7 +18,7 @@ from typing import Final
 import numpy as np
 from scipy import ndimage
 
-from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.config import CrackConfig, settings_from
 from aftershock.pipeline.damage.faces import Ortho, fit_faces, unroll
 from aftershock.pipeline.damage.ridge import PIXEL_SPACINGS, cloud_channels
 from aftershock.pipeline.types import LabelledCloud
@@ -188,14 +188,4 @@ def region_mask(cloud: LabelledCloud, spacing_m: float, settings: RegionSettings
 
 
 def settings_of(cfg: CrackConfig) -> RegionSettings:
-    return RegionSettings(
-        channels=tuple(cfg.region_channels),
-        scales_m=tuple(cfg.region_scales_m),
-        combine=cfg.region_combine,
-        high=cfg.region_high,
-        gate_ratio=cfg.region_gate_ratio,
-        low_ratio=cfg.region_low_ratio,
-        smooth_m=cfg.region_smooth_m,
-        open_m=cfg.region_open_m,
-        min_area_m2=cfg.region_min_area_m2,
-    )
+    return settings_from(cfg, RegionSettings, "region_")

@@ -17,7 +17,7 @@ from typing import Final
 import numpy as np
 from scipy import ndimage
 
-from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.config import CrackConfig, settings_from
 from aftershock.pipeline.damage.faces import Ortho
 from aftershock.pipeline.types import LabelledCloud
 
@@ -278,19 +278,7 @@ def detect_ridges(
 
 
 def settings_of(cfg: CrackConfig) -> RidgeSettings:
-    return RidgeSettings(
-        scales_m=tuple(cfg.ridge_scales_m),
-        channels=tuple(cfg.ridge_channels),
-        high=cfg.ridge_high,
-        low_ratio=cfg.ridge_low_ratio,
-        min_length_m=cfg.ridge_min_length_m,
-        min_elongation=cfg.ridge_min_elongation,
-        max_line_ratio=cfg.ridge_line_ratio,
-        max_chroma=cfg.ridge_max_chroma,
-        straight_width_m=cfg.ridge_straight_width_m,
-        member_z=cfg.ridge_member_z,
-        rim=cfg.ridge_rim,
-    )
+    return settings_from(cfg, RidgeSettings, "ridge_", max_line_ratio="ridge_line_ratio")
 
 
 def cloud_channels(cloud: LabelledCloud) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
