@@ -234,37 +234,21 @@ def _structure(
                 if r_damage.random() < spec.damaged_column_prob:
                     _damaged_column(b, r_damage, inst, x, y, z0, z1, cw, struct_col, k)
                 else:
-                    _column_box(b, inst, (x, y), z0, z1, cw, struct_col, k)
+                    b.add_box(
+                        (x, y, (z0 + z1) / 2),
+                        (cw, cw, z1 - z0),
+                        cls=C.COLUMN,
+                        instance=inst,
+                        material=CONCRETE,
+                        color=struct_col,
+                        story=k,
+                        span=True,
+                    )
                 cracks_on.append(
                     (inst, int(C.COLUMN), np.array([x, y, (z0 + z1) / 2]), np.array([cw, cw, z1 - z0]), k, True)
                 )
     for wall in plan.walls:
         _wall(plan, wall, b, rng, r_damage, cracks_on)
-
-
-def _column_box(
-    b: MeshBuilder,
-    inst: int,
-    xy: tuple[float, float],
-    lo: float,
-    hi: float,
-    width: float,
-    col: tuple[int, int, int],
-    k: int,
-    rotation: np.ndarray | None = None,
-) -> None:
-    """A square concrete column (or a part of one) from height `lo` to `hi`, centred on `xy`."""
-    b.add_box(
-        (xy[0], xy[1], (lo + hi) / 2),
-        (width, width, hi - lo),
-        cls=C.COLUMN,
-        instance=inst,
-        material=CONCRETE,
-        color=col,
-        story=k,
-        span=True,
-        rotation=rotation,
-    )
 
 
 def _damaged_column(
@@ -286,9 +270,28 @@ def _damaged_column(
     core = cw * rng.uniform(0.55, 0.8)
     off = rng.uniform(-0.06, 0.06, 2)
     for lo, hi in ((z0, a), (c, z1)):
-        _column_box(b, inst, (x, y), lo, hi, cw, col, k)
+        b.add_box(
+            (x, y, (lo + hi) / 2),
+            (cw, cw, hi - lo),
+            cls=C.COLUMN,
+            instance=inst,
+            material=CONCRETE,
+            color=col,
+            story=k,
+            span=True,
+        )
     tilt_x, tilt_y = rng.uniform(-0.08, 0.08, 2)
-    _column_box(b, inst, (x + off[0], y + off[1]), a, c, core, col, k, rotation_xyz(tilt_x, tilt_y, 0))
+    b.add_box(
+        (x + off[0], y + off[1], (a + c) / 2),
+        (core, core, c - a),
+        cls=C.COLUMN,
+        instance=inst,
+        material=CONCRETE,
+        color=col,
+        story=k,
+        span=True,
+        rotation=rotation_xyz(tilt_x, tilt_y, 0),
+    )
     for sx in (-1, 1):
         for sy in (-1, 1):
             bend = rng.uniform(-0.08, 0.08, 2)
