@@ -1,4 +1,4 @@
-"""What the crack detectors' benchmarks share (bench_cracks_ridge, bench_cracks_region): the published figures
+"""What the crack benchmarks share (bench_cracks, bench_cracks_ridge, bench_cracks_region): the published figures
 beside ours, the cloud find_cracks evaluates, F1, the share of crack-free points flagged, one table row."""
 
 from __future__ import annotations
