@@ -20,8 +20,8 @@ Entities (`world/` is the site, z up, with the class table as a static annotatio
   every `map_every` scans) only the tiles that changed are re-logged (only their labels when their points
   stayed), so a long mission stays light in the file and fluid in the viewer. `world/uncertain/x{i}y{j}`: the
   tile's voxels with a confidence under `cfg.uncertain_below`, drawn larger in magenta over the map.
-- `world/trajectory/p{k}`: the estimated trajectory as line strips of up to `TRAJECTORY_PIECE` poses; only the
-  newest piece is re-logged per scan.
+- `world/trajectory/p{k}`: the estimated trajectory as line strips of up to `rerun_scan.TRAJECTORY_PIECE` poses;
+  only the newest piece is re-logged per scan.
 - `world/robot`: the pose (Transform3D, world <- sensor); `world/robot/raw` the raw scan in the sensor frame,
   downsampled to `cfg.raw_voxel_m`, only when the log cannot be opened beside the recording;
   `world/robot/log_frame` ties the log's sensor frame to the pose when it can.
