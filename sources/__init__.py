@@ -80,11 +80,11 @@ def kind_of(path_or_uri: str | Path) -> SourceKind:
 
 
 def open(path_or_uri: str | Path, **options: Any) -> Iterator[Scan]:
-    """Scans from any supported input. Options (names of `SourceConfig`): topic, pose_topic, start_s,
-    end_s, max_scans, every; plus progress (a bar on stderr) and report (a `SourceReport` the reader fills
-    with the messages it skipped and the damage that ended the log). Problems with the input raise
-    InputError here, before the first scan; a message that cannot be decoded is skipped with a warning; a
-    log damaged part-way yields what precedes the damage, then warns."""
+    """Scans from any supported input. Options (the fields of `common.ReadOptions`, names of `SourceConfig`):
+    topic, pose_topic, start_s, end_s, max_scans, every; plus progress (a bar on stderr) and report (a
+    `SourceReport` the reader fills with the messages it skipped and the damage that ended the log). Problems
+    with the input raise InputError here, before the first scan; a message that cannot be decoded is skipped
+    with a warning; a log damaged part-way yields what precedes the damage, then warns."""
     kind = kind_of(path_or_uri)
     options = {k: v for k, v in options.items() if v is not None}
     if kind is SourceKind.SIM:
