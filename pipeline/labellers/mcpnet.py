@@ -38,6 +38,7 @@ NO_COLOR: Final = "mcpnet-nocolor"  # the colour-free network's weights: models/
 CHUNK: Final = 4096  # voxels per forward pass; bounds memory at about 4096 x 50 x 200 floats
 RELABEL_PER_NEW: Final = 4  # with relabelling on: at most this many older voxels re-classed per new voxel
 EMBED_REACH_M: Final = 1.5  # embed_cloud: each point is seen from at most this far away, as in a scan
+NOT_VOTED: Final = np.iinfo(np.uint16).max
 
 
 def distinct_pairs(ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -96,6 +97,9 @@ class MCPNetLabeller:
         # its class probabilities per map row (float16 keeps 28 bytes a voxel): a voxel whose class an instance
         # vote changed gets the probability the network gave that class as its confidence
         self.raw_prob = np.zeros((0, self.net.num_classes), np.float16)
+        # the class the last instance vote wrote per map row (NOT_VOTED: none since the row's own prediction): a
+        # vote rewrites only the rows whose voted class changed, and reports them (`label`'s return)
+        self.voted = np.zeros(0, np.uint16)
         self.rng = np.random.default_rng(0)  # which older voxels are relabelled
 
     @property
@@ -151,10 +155,11 @@ class MCPNetLabeller:
         draws = context_draws(vmap.keys[rows], net.coarse_points)
         return vmap.context_rows(vmap.positions[rows], net.coarse_cell_m, net.coarse_points, uniform=draws)
 
-    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray:
         """Label the voxels this scan opened. Earlier voxels are updated as more of the scene arrives: with
         `label.instance_vote` the instances this scan saw again take the class their voxels vote for; with
-        `label.relabel_old_voxels` older voxels seen again are re-predicted with the context they now have."""
+        `label.relabel_old_voxels` older voxels seen again are re-predicted with the context they now have.
+        Returns the rows whose class or score it rewrote besides the new ones."""
         origin = frame.pose[:3, 3] if frame.pose is not None else np.zeros(3)
         world = frame.world_points if frame.world_points is not None else np.zeros((0, 3))
         floor_z = floor_height(world)
@@ -172,6 +177,14 @@ class MCPNetLabeller:
         n = len(rows)
         self._grow(len(vmap))
         self.raw_class[rows], self.raw_score[rows], self.raw_prob[rows] = classes[:n], scores[:n], probs[:n]
+        given = frame.map_rows.given if frame.map_rows is not None else rows[:0]
+        given = given[vmap.class_ids[given] < self.net.num_classes] if len(given) else given
+        if len(given):  # labelled by the structure model (its element's class and confidence): they vote as such
+            self.raw_class[given], self.raw_score[given] = vmap.class_ids[given], vmap.scores[given]
+            self.raw_prob[given] = 0.0
+            self.raw_prob[given, self.raw_class[given]] = vmap.scores[given]
+        self.voted[rows] = NOT_VOTED
+        self.voted[given] = NOT_VOTED
         vmap.class_ids[rows] = classes[:n]
         vmap.scores[rows] = scores[:n]
         vmap.embeddings[rows] = emb[:n]
@@ -186,8 +199,18 @@ class MCPNetLabeller:
             )
             vmap.class_ids[up] = classes[n:][better]
             vmap.scores[up] = scores[n:][better]
+            self.voted[up] = NOT_VOTED
+        else:
+            up = rows_old
         if self.vote and frame.map_rows is not None:
-            self.vote_instances(vmap, vmap.instance_ids[frame.map_rows.rows])
+            return np.r_[up, self._vote(vmap, vmap.instance_ids[frame.map_rows.rows])]
+        return up
+
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """Every voxel of these instances takes the class its instance's voxels vote for, each vote weighted
+        by the network's confidence (the network's own per-voxel predictions are kept for later votes); its
+        confidence becomes the probability the network gave it for that class."""
+        self._vote(vmap, instances)
 
     def _grow(self, n: int) -> None:
         if n > len(self.raw_class):
@@ -197,15 +220,17 @@ class MCPNetLabeller:
             prob = np.zeros((size, self.raw_prob.shape[1]), np.float16)
             prob[: len(self.raw_prob)] = self.raw_prob
             self.raw_prob = prob
+            voted = np.full(size, NOT_VOTED, np.uint16)
+            voted[: len(self.voted)] = self.voted
+            self.voted = voted
 
-    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
-        """Every voxel of these instances takes the class its instance's voxels vote for, each vote weighted
-        by the network's confidence (the network's own per-voxel predictions are kept for later votes); its
-        confidence becomes the probability the network gave it for that class."""
+    def _vote(self, vmap: VoxelMap, instances: np.ndarray) -> np.ndarray:
+        """`vote_instances`; returns the rows it rewrote (those whose voted class changed since their last vote:
+        the others hold it already, or what the structure model wrote over it)."""
         touched = np.unique(instances)
         touched = touched[touched > 0]
         if not len(touched):
-            return
+            return np.zeros(0, np.int64)
         ids = vmap.instance_ids
         members = np.flatnonzero(np.isin(ids, touched))
         which = np.searchsorted(touched, ids[members])
@@ -213,9 +238,14 @@ class MCPNetLabeller:
         votes = np.bincount(
             which * c + self.raw_class[members], weights=self.raw_score[members], minlength=len(touched) * c
         )
-        voted = votes.reshape(len(touched), c).argmax(axis=1)[which]
-        vmap.class_ids[members] = voted.astype(np.uint16)
+        voted = votes.reshape(len(touched), c).argmax(axis=1)[which].astype(np.uint16)
+        self._grow(len(vmap))
+        change = self.voted[members] != voted
+        members, voted = members[change], voted[change]
+        vmap.class_ids[members] = voted
         vmap.scores[members] = self.raw_prob[members, voted]
+        self.voted[members] = voted
+        return members
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         """Link two voxels when their embeddings' cosine similarity exceeds β."""
