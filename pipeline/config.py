@@ -8,13 +8,19 @@ from __future__ import annotations
 
 import json
 import tomllib
+from dataclasses import fields
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Final, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Final, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from aftershock.pipeline.errors import InputError
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+S = TypeVar("S", bound="DataclassInstance")
 
 
 class Environment(StrEnum):
@@ -455,6 +461,12 @@ class Config(_Section):
     drift: DriftConfig = DriftConfig()
     report: ReportConfig = ReportConfig()
     structure: StructureConfig = StructureConfig()
+
+
+def settings_from(section: BaseModel, settings: type[S], prefix: str = "", **renamed: str) -> S:
+    """A component's settings (a dataclass) from the section's fields named `prefix` + each field's name
+    (`renamed`: field -> the section's name, where it differs)."""
+    return settings(**{f.name: getattr(section, renamed.get(f.name, prefix + f.name)) for f in fields(settings)})
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:

@@ -10,6 +10,7 @@ Conventions (fixed, relied on everywhere):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -226,6 +227,17 @@ class Story:
     tilt_deg: float | None
     num_points: int
     reason: str | None = None
+
+
+@dataclass(slots=True)
+class DamageFound:
+    """What a damage analysis hands the sinks: the cracks with their points (for the viewer), the story planes,
+    and the whole report as JSON data (None where no report is written)."""
+
+    cracks: list[Crack] = field(default_factory=list)
+    crack_points: LabelledCloud | None = None
+    stories: list[Story] = field(default_factory=list)
+    report: dict[str, Any] | None = None
 
 
 @dataclass(slots=True)

@@ -51,6 +51,11 @@ def distinct_pairs(ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return owner.astype(np.int64), s[keep].astype(np.int64)
 
 
+def top_class(probs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Class ids (K,) uint16 and scores (K,) float32 (the probability of that class) of probabilities (K, C)."""
+    return probs.argmax(axis=1).astype(np.uint16), probs.max(axis=1, initial=0.0)
+
+
 class MCPNetLabeller:
     """The `Labeller` of `pipeline.label` backed by an MCPNet (or, with other weights, its no-context variant)."""
 
@@ -101,19 +106,6 @@ class MCPNetLabeller:
     def config(self) -> NetConfig:
         return self.net
 
-    def predict(
-        self,
-        vmap: VoxelMap,
-        rows: np.ndarray,
-        origin: np.ndarray,
-        floor_z: float,
-        use_color: bool,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Class ids (K,) uint16, scores (K,) float32 (the softmax probability of that class) and embeddings
-        (K, E) float32 of map rows, seen from the robot at `origin` ((3,), or (K, 3) one per row)."""
-        prob, emb = self.predict_probs(vmap, rows, origin, floor_z, use_color)
-        return prob.argmax(axis=1).astype(np.uint16), prob.max(axis=1, initial=0.0), emb
-
     def predict_probs(
         self,
         vmap: VoxelMap,
@@ -122,7 +114,8 @@ class MCPNetLabeller:
         floor_z: float,
         use_color: bool,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Softmax class probabilities (K, C) float32 and embeddings (K, E) float32 of map rows (see `predict`)."""
+        """Softmax class probabilities (K, C) float32 and embeddings (K, E) float32 of map rows, seen from the
+        robot at `origin` ((3,), or (K, 3) one per row); `top_class` gives their classes and scores."""
         model, net = (self.model, self.net) if use_color else (self.mono_model, self.mono_net)
         rows = np.asarray(rows, dtype=np.int64)
         k = len(rows)
@@ -180,7 +173,7 @@ class MCPNetLabeller:
         else:
             rows_old = np.zeros(0, np.int64)
         probs, emb = self.predict_probs(vmap, np.r_[rows, rows_old], origin, floor_z, use_color)
-        classes, scores = probs.argmax(axis=1).astype(np.uint16), probs.max(axis=1, initial=0.0)
+        classes, scores = top_class(probs)
         n = len(rows)
         self._grow(len(vmap))
         self.raw_class[rows], self.raw_score[rows], self.raw_prob[rows] = classes[:n], scores[:n], probs[:n]
@@ -275,7 +268,7 @@ class MCPNetLabeller:
         offset[:, 2] = 0.0
         dist = np.linalg.norm(offset, axis=1, keepdims=True)
         origin = stored - offset * np.minimum(1.0, EMBED_REACH_M / np.maximum(dist, 1e-9))
-        _, _, emb = self.predict(vmap, point_rows, origin, floor_height(pts), cloud.colors is not None)
+        _, emb = self.predict_probs(vmap, point_rows, origin, floor_height(pts), cloud.colors is not None)
         return emb
 
 
