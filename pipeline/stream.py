@@ -32,7 +32,14 @@ from aftershock.pipeline.classes import CLASS_NAMES, NUM_CLASSES
 from aftershock.pipeline.cluster import InstanceClusterer, cluster_stage
 from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError, OutputError
-from aftershock.pipeline.label import FALLBACK_LABELLER, Labeller, label_stage, labelling_range, make_labeller
+from aftershock.pipeline.label import (
+    FALLBACK_LABELLER,
+    Labeller,
+    hand_structure,
+    label_stage,
+    labelling_range,
+    make_labeller,
+)
 from aftershock.pipeline.labellers.oracle import TruthStandIn
 from aftershock.pipeline.register import (
     MIN_POINTS,
@@ -368,6 +375,7 @@ def _set_up(
     )
     if cfg.structure.enabled and cfg.label.oracle != "classes":  # the true classes leave nothing to fuse
         run.structure = StructureModel(cfg.structure, environment, run.vmap.voxel_size)
+        hand_structure(labeller, run.structure)  # weights that read its evidence see it as of the previous scan
     if labeller.name != FALLBACK_LABELLER and not isinstance(labeller, TruthStandIn):  # the baseline learnt nothing
         run.distribution = DistributionCheck(Reference.load(), notice)
     return run, (s for part in (skipped, [first], it) for s in part)
