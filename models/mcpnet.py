@@ -300,8 +300,8 @@ def point_inputs_of_rows(
     if not cfg.geometry:
         return point_inputs(cfg, base, structure=structure)
     offsets, mask = row_offsets(positions, rows, ctx_rows)
-    wide = row_offsets(positions, rows, wide_rows) if wide_rows is not None else (None, None)
-    return point_inputs(cfg, base, offsets, mask, *wide, structure=structure)
+    wide, wide_mask = row_offsets(positions, rows, wide_rows) if wide_rows is not None else (None, None)
+    return point_inputs(cfg, base, offsets, mask, wide, wide_mask, structure)
 
 
 def context_features(
