@@ -27,10 +27,12 @@ browser:
 	@command -v chromium >/dev/null || { $(SUDO) apt-get update -q && $(SUDO) apt-get install -y -q chromium; }
 
 # mypy (below) takes about a minute of one core from a fresh clone, seconds with its cache in .mypy_cache.
+# The suite runs on every core (pytest-xdist), a test file to a worker: a file's fixtures are built once.
+TEST_WORKERS ?= logical
 test: setup browser
 	$(BIN)/ruff check .
 	$(MYPY)
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # Faults and hostile input on their own (also part of `make test`): full disks through a small tmpfs (needs root,
 # skipped otherwise), SIGINT/SIGTERM/SIGKILL mid-run, truncated and corrupted logs, hostile headers and settings.

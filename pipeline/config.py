@@ -8,13 +8,19 @@ from __future__ import annotations
 
 import json
 import tomllib
+from dataclasses import fields
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Final, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Final, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from aftershock.pipeline.errors import InputError
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+S = TypeVar("S", bound="DataclassInstance")
 
 
 class Environment(StrEnum):
@@ -406,14 +412,40 @@ class StructureConfig(_Section):
     column_max_width_m: Positive = 1.0  # a column's footprint fits in a square this wide
     column_min_cover: Fraction = 0.6  # ... its cells are occupied over this share of the story's height ...
     column_min_height_m: Positive = 1.8  # ... or of this height above the floor, if less
+    # an engaged column (built into a wall or against it) stands proud of the wall's plane by at most this ...
+    column_max_proud_m: Annotated[float, Field(gt=0, le=1.0)] = 0.5
+    engaged_min_proud_m: Positive = 0.12  # ... and by at least this (a wall seen twice stands off itself less) ...
+    column_min_width_m: Positive = 0.3  # ... along the wall at least this wide ...
+    engaged_max_width_m: Annotated[float, Field(gt=0, le=2.0)] = 0.8  # ... and at most this wide ...
+    engaged_min_face: Fraction = 0.4  # ... with this share of its voxels on one face parallel to the wall
     beam_max_depth_m: Positive = 0.8  # beams hang at most this far under a ceiling ...
     beam_min_length_m: Positive = 1.2  # ... run at least this long ...
-    beam_max_width_m: Positive = 0.8  # ... and are at most this wide
+    beam_max_width_m: Positive = 0.8  # ... and are at most this wide, and not within this of a wall's plane
+    beam_wall_reach_m: Positive = 0.3  # (a wall's head seen without its lower part)
     default_story_m: Positive = 2.8  # a story's height where no ceiling was found
     min_story_m: Positive = 2.0  # a floor this close above another is furniture (desks, beds), not a story's slab
     ground_cell_m: Positive = 1.0  # outdoors: the ground's height per cell of this size ...
     ground_band_m: Positive = 0.2  # ... and a voxel within this height above it is ground
     keep_confidence: Fraction = 0.9  # a confident non-structural network label on an element is kept
+    # new voxels on a confirmed element take its class, confidence and embedding without the network (a labeller
+    # with embeddings only: the clustering reads them) ...
+    skip_explained: bool = True
+    # ... in logs with colour too (off: there it cost the validation missions a point of mean IoU and 2 of NMI)
+    skip_with_colour: bool = False
+    # openings (pipeline.structure.openings): gaps in a wall's face the sensor saw through
+    openings: bool = True
+    opening_cell_m: Positive = 0.1  # the wall's occupancy grid (along it, height above the floor)
+    door_min_width_m: Positive = 0.5  # a door is a gap from the floor up this wide at least ...
+    door_max_width_m: Positive = 2.5  # ... and at most
+    window_min_width_m: Positive = 0.4  # a window is a gap over a sill this wide at least ...
+    window_max_width_m: Positive = 3.5  # ... and at most ...
+    sill_min_m: NonNegative = 0.6  # ... its sill (the lowest rays through it) this high above the floor at least ...
+    sill_max_m: Positive = 1.5  # ... and at most
+    door_min_height_m: Positive = 1.95  # a door's head stands this high at least (where the map reaches that high)
+    opening_min_height_m: Positive = 0.6  # an opening's height seen, at least
+    opening_max_width_m: Positive = 3.5  # wall pieces this far apart along one line may bound one opening
+    opening_min_seen: Fraction = 0.3  # the sensor saw through this share of an opening's width (not a shadow)
+    opening_depth_m: Positive = 0.35  # an opening's voxels (frames, glass) lie at most this far behind the face
 
 
 class Config(_Section):
@@ -429,6 +461,12 @@ class Config(_Section):
     drift: DriftConfig = DriftConfig()
     report: ReportConfig = ReportConfig()
     structure: StructureConfig = StructureConfig()
+
+
+def settings_from(section: BaseModel, settings: type[S], prefix: str = "", **renamed: str) -> S:
+    """A component's settings (a dataclass) from the section's fields named `prefix` + each field's name
+    (`renamed`: field -> the section's name, where it differs)."""
+    return settings(**{f.name: getattr(section, renamed.get(f.name, prefix + f.name)) for f in fields(settings)})
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:

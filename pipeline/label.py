@@ -9,7 +9,7 @@ nothing until it is chosen.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from time import perf_counter
 from typing import TYPE_CHECKING, Final, Protocol, runtime_checkable
 
@@ -33,6 +33,9 @@ LABELLERS: Final[dict[str, str]] = {
     "pointnet-spatial": "pointnet_online",
 }
 FALLBACK_LABELLER: Final = "region-growing"
+# (map, the scan's new rows, the frame) -> the rows of them already labelled (class, score, embedding written) by
+# another part of the stream: the structure model's confirmed elements. The labeller gets the rest.
+Explain = Callable[[VoxelMap, np.ndarray, Frame], np.ndarray]
 
 
 @runtime_checkable
@@ -42,9 +45,11 @@ class Labeller(Protocol):
     name: str
     embedding_dim: int  # width of the per-voxel embeddings it writes (0 = none)
 
-    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray | None:
         """Fill `class_ids`, `scores` (and where it has them `normals`, `embeddings`) of the new rows.
-        `frame` is registered (pose, world points) and `frame.map_rows` says which points went into the map."""
+        `frame` is registered (pose, world points) and `frame.map_rows` says which points went into the map, and
+        which new rows were labelled already (`given`: not among `new_rows`). Returns the older rows whose class
+        or score it rewrote too (instance votes), or None when it cannot say (any may have changed)."""
         ...
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
@@ -98,11 +103,14 @@ def labelling_range(cfg: Config, environment: Environment) -> float:
     return cfg.label.outdoor_range_m if environment is Environment.OUTDOOR else cfg.label.indoor_range_m
 
 
-def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float) -> Frame:
+def label_frame(
+    frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float, explain: Explain | None = None
+) -> Frame:
     scan = frame.scan
     n = len(scan)
     if not frame.registration_ok or frame.world_points is None:
         frame.map_rows = MapRows.empty()
+        frame.rewritten = frame.map_rows.new_rows
         frame.labels = Labels.empty(n)
         frame.counts.update(kept=0, new_voxels=0, map_voxels=len(vmap))
         return frame
@@ -115,9 +123,18 @@ def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float
         frame.world_points[idx], pick(scan.colors), scan.seq, pick(scan.class_ids), pick(scan.instance_ids)
     )
     _, first = np.unique(rows, return_index=True)  # rows are numbered in first-point order
-    frame.map_rows = MapRows(points=idx, rows=rows, new_rows=new_rows, first_points=idx[first])
+    given = new_rows[:0]
+    if explain is not None and frame.pose is not None:
+        t0 = perf_counter()
+        given = explain(vmap, new_rows, frame)
+        # the structure model's work, timed as its own
+        frame.timings_ms["structure"] = frame.timings_ms.get("structure", 0.0) + (perf_counter() - t0) * 1e3
+    frame.map_rows = MapRows(points=idx, rows=rows, new_rows=new_rows, first_points=idx[first], given=given)
     if len(new_rows):
-        labeller.label(vmap, new_rows, frame)
+        rest = new_rows[~np.isin(new_rows, given)] if len(given) else new_rows
+        frame.rewritten = labeller.label(vmap, rest, frame)
+    else:
+        frame.rewritten = new_rows
     labels = Labels.empty(n)
     labels.class_ids[idx] = vmap.class_ids[rows]
     labels.instance_ids[idx] = vmap.instance_ids[rows]
@@ -131,9 +148,14 @@ def label_frame(frame: Frame, vmap: VoxelMap, labeller: Labeller, range_m: float
     return frame
 
 
-def label_stage(frames: Iterable[Frame], vmap: VoxelMap, labeller: Labeller, range_m: float) -> Iterator[Frame]:
+def label_stage(
+    frames: Iterable[Frame], vmap: VoxelMap, labeller: Labeller, range_m: float, explain: Explain | None = None
+) -> Iterator[Frame]:
+    """Each frame labelled; with `explain`, the new voxels it explains skip the labeller (and its time is the
+    `structure` stage's, not the label stage's)."""
     for frame in frames:
         t0 = perf_counter()
-        label_frame(frame, vmap, labeller, range_m)
-        frame.timings_ms["label"] = (perf_counter() - t0) * 1e3
+        label_frame(frame, vmap, labeller, range_m, explain)
+        own = frame.timings_ms.get("structure", 0.0)
+        frame.timings_ms["label"] = (perf_counter() - t0) * 1e3 - own
         yield frame

@@ -25,7 +25,7 @@ from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import enabled, working
 from aftershock.pipeline.sink import Sink
 from aftershock.pipeline.stream import StreamResult, run_stream
-from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Scan, SourceReport, Story
+from aftershock.pipeline.types import DamageFound, LabelledCloud, RunInfo, RunSummary, Scan, SourceReport
 
 SAMPLE: Final = Path(str(resources.files("aftershock.recordings") / "sample.mcap"))  # shipped in the wheel
 
@@ -311,7 +311,7 @@ class OnDemand:
         data = report.to_json()
         data["seconds"] = round(perf_counter() - t0, 3)
         for sink in sinks:
-            sink.damage(report.cracks, report.crack_points, report.stories, data)
+            sink.damage(DamageFound(report.cracks, report.crack_points, report.stories, data))
         self.results["damage"] = data
 
 
@@ -323,16 +323,7 @@ def _jsonable(obj: object) -> object:
     return str(obj)
 
 
-def save_recording(
-    path: Path,
-    cloud: LabelledCloud,
-    cfg: RerunConfig,
-    force: bool,
-    cracks: list[Crack] | None = None,
-    crack_points: LabelledCloud | None = None,
-    stories: list[Story] | None = None,
-    report: dict[str, Any] | None = None,
-) -> Path:
+def save_recording(path: Path, cloud: LabelledCloud, cfg: RerunConfig, force: bool, found: DamageFound) -> Path:
     """A Rerun recording of an on-demand analysis (`cracks --save`, `drift --save`) at `path` (checked like every
     output): the analysed cloud as the map, then the cracks and stories found on it, in the default layout."""
     from aftershock.sinks.rerun_sink import RerunSink
@@ -340,7 +331,7 @@ def save_recording(
     sink = RerunSink(path, False, None, cfg, force)
     try:
         sink.end(RunSummary(points=len(cloud), map_voxels=len(cloud)), cloud)  # the map first: stories span it
-        sink.damage(cracks or [], crack_points, stories or [], report)
+        sink.damage(found)
     finally:
         sink.close()
     return path

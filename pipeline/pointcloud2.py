@@ -99,17 +99,18 @@ uint32 offset
 uint8 datatype
 uint32 count"""
 
-_SEP: Final[str] = "=" * 80
-_HEADER_DEPS: Final[str] = f"""{_SEP}
+MSGDEF_SEPARATOR: Final[str] = "=" * 80  # between a message definition and each type it uses
+_HEADER_DEPS: Final[str] = f"""{MSGDEF_SEPARATOR}
 MSG: std_msgs/Header
 builtin_interfaces/Time stamp
 string frame_id
-{_SEP}
+{MSGDEF_SEPARATOR}
 MSG: builtin_interfaces/Time
 int32 sec
 uint32 nanosec"""
 
-POINTCLOUD2_MSGDEF: Final[str] = f"""std_msgs/Header header
+# PointCloud2's own fields, the same in ROS 1 and ROS 2 (their Header differs).
+POINTCLOUD2_FIELDS: Final[str] = """std_msgs/Header header
 uint32 height
 uint32 width
 sensor_msgs/PointField[] fields
@@ -117,9 +118,11 @@ bool is_bigendian
 uint32 point_step
 uint32 row_step
 uint8[] data
-bool is_dense
+bool is_dense"""
+
+POINTCLOUD2_MSGDEF: Final[str] = f"""{POINTCLOUD2_FIELDS}
 {_HEADER_DEPS}
-{_SEP}
+{MSGDEF_SEPARATOR}
 MSG: sensor_msgs/PointField
 {POINTFIELD_MSGDEF}
 """
@@ -127,16 +130,16 @@ MSG: sensor_msgs/PointField
 POSE_STAMPED_MSGDEF: Final[str] = f"""std_msgs/Header header
 geometry_msgs/Pose pose
 {_HEADER_DEPS}
-{_SEP}
+{MSGDEF_SEPARATOR}
 MSG: geometry_msgs/Pose
 geometry_msgs/Point position
 geometry_msgs/Quaternion orientation
-{_SEP}
+{MSGDEF_SEPARATOR}
 MSG: geometry_msgs/Point
 float64 x
 float64 y
 float64 z
-{_SEP}
+{MSGDEF_SEPARATOR}
 MSG: geometry_msgs/Quaternion
 float64 x
 float64 y

@@ -5,12 +5,11 @@ are ready. Sinks (`aftershock.sinks`) implement it; nothing here knows about the
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Any
 
 import numpy as np
 
 from aftershock.pipeline.structure.elements import Element
-from aftershock.pipeline.types import Crack, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.pipeline.types import DamageFound, Frame, InstanceMerge, LabelledCloud, RunInfo, RunSummary
 
 
 class Stage(StrEnum):
@@ -42,14 +41,8 @@ class Sink:
     def refined(self, cloud: LabelledCloud, steps: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
         """LRGNet's re-segmentation of the map; `steps` = (inlier indices, neighbour indices) of one object's growth."""
 
-    def damage(
-        self,
-        cracks: list[Crack],
-        crack_points: LabelledCloud | None,
-        stories: list[Story],
-        report: dict[str, Any] | None = None,
-    ) -> None:
-        """Cracks and story drift/tilt found on the map; `report` is the whole damage report as JSON data."""
+    def damage(self, found: DamageFound) -> None:
+        """Cracks and story drift/tilt found on the map; `found.report` is the whole damage report as JSON data."""
 
     def end(self, summary: RunSummary, final_map: LabelledCloud) -> None:
         """After the last frame (also after an interruption), with what was measured."""

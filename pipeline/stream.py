@@ -34,6 +34,7 @@ from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError, OutputError
 from aftershock.pipeline.label import (
     FALLBACK_LABELLER,
+    Explain,
     Labeller,
     hand_structure,
     label_stage,
@@ -74,10 +75,20 @@ def stage_chain(
         registered = _ahead(registered, run.cfg.stream.ahead)
     # The raw scan goes to the sinks after its registration (which leaves it as it is): all on this thread.
     frames = _tap(_tap(registered, sinks, Stage.RAW), sinks, Stage.REGISTERED)
-    labelled = structure_stage(label_stage(frames, run.vmap, run.labeller, reach), run.vmap, run.structure)
+    labelled = label_stage(frames, run.vmap, run.labeller, reach, explainer(run.structure, run.labeller))
+    labelled = structure_stage(labelled, run.vmap, run.structure)
     frames = _tap(labelled, sinks, Stage.LABELLED)
     frames = _tap(cluster_stage(frames, run.vmap, run.clusterer), sinks, Stage.CLUSTERED)
     return registered, frames
+
+
+def explainer(model: StructureModel | None, labeller: Labeller) -> Explain | None:
+    """The structure model's `explain` for the label stage (new voxels on a confirmed element skip the network),
+    for a labeller with embeddings (the element gives its own; one without links voxels by normals, which the
+    structure does not give)."""
+    if model is None or not model.cfg.skip_explained or not labeller.embedding_dim:
+        return None
+    return model.explain
 
 
 @dataclass(slots=True)

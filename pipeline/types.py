@@ -10,6 +10,7 @@ Conventions (fixed, relied on everywhere):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -112,6 +113,9 @@ class MapRows:
     rows: np.ndarray  # (K,) the map row of each kept point
     new_rows: np.ndarray  # rows the scan opened, in first-point order
     first_points: np.ndarray  # indices into the scan of the first kept point of each voxel the scan fell in
+    # new rows labelled before the labeller (on a confirmed structural element: class, score and embedding
+    # written); the labeller was given the rest
+    given: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __post_init__(self) -> None:
         _check_len("rows", self.rows, len(self.points))
@@ -135,6 +139,9 @@ class Frame:
     registration_ok: bool = True
     registration_note: str = ""
     map_rows: MapRows | None = None  # what the labelling stage did to the map (None before it)
+    # older map rows whose class or score the labeller rewrote with this scan (instance votes); None: it could
+    # not say (any may have changed)
+    rewritten: np.ndarray | None = None
     labels: Labels | None = None  # for the points of `scan` (unlabelled where not kept)
     merges: list[InstanceMerge] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
@@ -220,6 +227,17 @@ class Story:
     tilt_deg: float | None
     num_points: int
     reason: str | None = None
+
+
+@dataclass(slots=True)
+class DamageFound:
+    """What a damage analysis hands the sinks: the cracks with their points (for the viewer), the story planes,
+    and the whole report as JSON data (None where no report is written)."""
+
+    cracks: list[Crack] = field(default_factory=list)
+    crack_points: LabelledCloud | None = None
+    stories: list[Story] = field(default_factory=list)
+    report: dict[str, Any] | None = None
 
 
 @dataclass(slots=True)

@@ -22,7 +22,7 @@ import json
 from contextlib import suppress
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import IO, Any, Final
+from typing import IO, Final
 
 import numpy as np
 
@@ -33,7 +33,7 @@ from aftershock.pipeline.outputs import FolderLock, StreamedOutput, check_output
 from aftershock.pipeline.pointcloud2 import matrix_to_quaternion
 from aftershock.pipeline.sink import Sink, Stage
 from aftershock.pipeline.structure.elements import Element
-from aftershock.pipeline.types import Crack, Frame, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.pipeline.types import DamageFound, Frame, LabelledCloud, RunInfo, RunSummary
 from aftershock.sinks.structure_layer import write_structure_json
 
 MAP_FILE: Final = "map.ply"
@@ -176,16 +176,10 @@ class FileExportSink(Sink):
         if self.refined_path is not None:
             write_cloud(self.refined_path, cloud, force=True)  # checked at construction
 
-    def damage(
-        self,
-        cracks: list[Crack],
-        crack_points: LabelledCloud | None,
-        stories: list[Story],
-        report: dict[str, Any] | None = None,
-    ) -> None:
-        if self.damage_path is None or report is None:
+    def damage(self, found: DamageFound) -> None:
+        if self.damage_path is None or found.report is None:
             return
-        text = json.dumps(report, indent=2) + "\n"
+        text = json.dumps(found.report, indent=2) + "\n"
         write_atomically(self.damage_path, lambda tmp: tmp.write_text(text))
 
     def close(self) -> None:

@@ -17,6 +17,7 @@ from aftershock.pipeline.structure.elements import Element, Kind
 ROOT: Final = "world/structure"
 OUTLINED: Final = (Kind.FLOOR, Kind.CEILING, Kind.WALL, Kind.GROUND)
 BOXED: Final = (Kind.COLUMN, Kind.BEAM)
+OPENINGS: Final = (Kind.WINDOW, Kind.DOOR)  # outlined rectangles in their wall's face, in one entity
 LINE_RADIUS: Final = 0.02
 
 
@@ -33,7 +34,8 @@ def write_structure_json(path: Path, elements: Sequence[Element], notes: Sequenc
 
 
 def log_structure(rec: rr.RecordingStream, elements: Sequence[Element]) -> None:
-    """One entity per kind under `world/structure` (each logged whole, replacing the last: elements come and go)."""
+    """One entity per kind under `world/structure` (each logged whole, replacing the last: elements come and go);
+    windows and doors together in `world/structure/openings`."""
     for kind in (*OUTLINED, *BOXED):  # one iteration per kind of element
         mine = [e for e in elements if e.kind is kind]
         path = f"{ROOT}/{kind.value}s"
@@ -49,3 +51,16 @@ def log_structure(rec: rr.RecordingStream, elements: Sequence[Element]) -> None:
             lo = np.array([e.lo for e in mine])
             hi = np.array([e.hi for e in mine])
             rec.log(path, rr.Boxes3D(centers=(lo + hi) / 2, half_sizes=(hi - lo) / 2, colors=colors, labels=labels))
+    openings = [e for e in elements if e.kind in OPENINGS]
+    if not openings:
+        rec.log(f"{ROOT}/openings", rr.Clear(recursive=False))
+        return
+    rec.log(
+        f"{ROOT}/openings",
+        rr.LineStrips3D(
+            [e.outline() for e in openings],
+            colors=np.array([CLASS_COLORS[e.class_id] for e in openings], np.uint8),
+            radii=LINE_RADIUS,
+            labels=[f"{e.kind.value} {e.id}" for e in openings],
+        ),
+    )

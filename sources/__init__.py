@@ -80,11 +80,11 @@ def kind_of(path_or_uri: str | Path) -> SourceKind:
 
 
 def open(path_or_uri: str | Path, **options: Any) -> Iterator[Scan]:
-    """Scans from any supported input. Options (names of `SourceConfig`): topic, pose_topic, start_s,
-    end_s, max_scans, every; plus progress (a bar on stderr) and report (a `SourceReport` the reader fills
-    with the messages it skipped and the damage that ended the log). Problems with the input raise
-    InputError here, before the first scan; a message that cannot be decoded is skipped with a warning; a
-    log damaged part-way yields what precedes the damage, then warns."""
+    """Scans from any supported input. Options (the fields of `common.ReadOptions`, names of `SourceConfig`):
+    topic, pose_topic, start_s, end_s, max_scans, every; plus progress (a bar on stderr) and report (a
+    `SourceReport` the reader fills with the messages it skipped and the damage that ended the log). Problems
+    with the input raise InputError here, before the first scan; a message that cannot be decoded is skipped
+    with a warning; a log damaged part-way yields what precedes the damage, then warns."""
     kind = kind_of(path_or_uri)
     options = {k: v for k, v in options.items() if v is not None}
     if kind is SourceKind.SIM:
@@ -92,17 +92,20 @@ def open(path_or_uri: str | Path, **options: Any) -> Iterator[Scan]:
 
         options.pop("report", None)  # the simulator has nothing to skip
         return open_simulated(str(path_or_uri), **options)
+    from aftershock.sources.common import ReadOptions
+
+    read = ReadOptions(**options)
     if kind is SourceKind.MCAP:
         from aftershock.sources.mcap_source import open_mcap
 
-        return open_mcap(Path(path_or_uri), **options)
+        return open_mcap(Path(path_or_uri), read)
     if kind is SourceKind.BAG:
         from aftershock.sources.bag import open_bag
 
-        return open_bag(Path(path_or_uri), **options)
+        return open_bag(Path(path_or_uri), read)
     from aftershock.sources.files import open_files
 
-    return open_files(path_or_uri, **options)
+    return open_files(path_or_uri, read)
 
 
 def describe(path_or_uri: str | Path, topic: str | None = None) -> SourceDescription:

@@ -12,18 +12,17 @@ import numpy as np
 
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
-from aftershock.pipeline.types import Scan, SourceReport
+from aftershock.pipeline.types import Scan
 from aftershock.sources.common import (
     CloudMessage,
     Damage,
     DecodedCloud,
     Event,
+    ReadOptions,
     assemble,
-    check_window,
     choose_pose_topic,
     choose_topic,
     pose_event,
-    window_ns,
 )
 
 ROS1_MAGIC: Final[bytes] = b"#ROSBAG V2.0"
@@ -129,34 +128,15 @@ def _cloud(reader: Any, raw: bytes, msgtype: str) -> DecodedCloud:
     return DecodedCloud(cloud.columns, header_stamp_ns(msg), str(msg.header.frame_id), cloud.fields, cloud.height)
 
 
-def open_bag(
-    path: Path,
-    *,
-    topic: str | None = None,
-    pose_topic: str | None = None,
-    start_s: float | None = None,
-    end_s: float | None = None,
-    max_scans: int | None = None,
-    every: int = 1,
-    progress: bool = False,
-    report: SourceReport | None = None,
-) -> Iterator[Scan]:
+def open_bag(path: Path, options: ReadOptions) -> Iterator[Scan]:
     """Scans of one PointCloud2 topic of a ROS 1 or ROS 2 bag (checked now, read lazily)."""
-    check_window(start_s, end_s, every, max_scans)
     cat = read_catalog(path)
-    chosen = choose_topic(cat.types, topic, path)
+    chosen = choose_topic(cat.types, options.topic, path)
     if cat.types[chosen] == "foxglove.PointCloud":
         raise InputError(f"topic {chosen}: foxglove.PointCloud is read from MCAP files only", path)
-    pose = choose_pose_topic(cat.types, pose_topic, path)
-    lo, hi = window_ns(cat.start_ns, start_s, end_s)
+    pose = choose_pose_topic(cat.types, options.pose_topic, path)
+    lo, hi = options.window_ns(cat.start_ns)
+    total = cat.topics[chosen][1] if lo is None and hi is None else None
     return assemble(
-        events(path, {chosen}, pose, lo, hi),
-        path=path,
-        topic=chosen,
-        with_poses=pose is not None,
-        every=every,
-        max_scans=max_scans,
-        total=cat.topics[chosen][1] if lo is None and hi is None else None,
-        progress=progress,
-        report=report,
+        events(path, {chosen}, pose, lo, hi), options, path=path, topic=chosen, with_poses=pose is not None, total=total
     )

@@ -145,22 +145,35 @@ def choose_pose_topic(types: Mapping[str, str], pose_topic: str | None, path: st
     return poses[0] if len(poses) == 1 else None
 
 
-def window_ns(log_start_ns: int | None, start_s: float | None, end_s: float | None) -> tuple[int | None, int | None]:
-    """[lo, hi) log-time bounds in ns for a window given in seconds from the log start."""
-    if log_start_ns is None:
-        return None, None
-    lo = None if start_s is None else log_start_ns + round(start_s * 1e9)
-    hi = None if end_s is None else log_start_ns + round(end_s * 1e9)
-    return lo, hi
+@dataclass(frozen=True, slots=True)
+class ReadOptions:
+    """What of a log a reader reads (names of `SourceConfig`), whether it shows a progress bar on stderr, and the
+    `SourceReport` it fills with the messages it skipped and the damage that ended the log. Checked when made."""
 
+    topic: str | None = None  # the point-cloud topic (None: the only one)
+    pose_topic: str | None = None  # the ground-truth PoseStamped topic (None: the only one, if any)
+    start_s: float | None = None  # the window, in seconds from the log's start
+    end_s: float | None = None
+    max_scans: int | None = None
+    every: int = 1  # keep every n-th cloud
+    progress: bool = False
+    report: SourceReport | None = None
 
-def check_window(start_s: float | None, end_s: float | None, every: int, max_scans: int | None) -> None:
-    if every < 1:
-        raise InputError(f"--every must be at least 1, not {every}")
-    if max_scans is not None and max_scans < 1:
-        raise InputError(f"--max-scans must be at least 1, not {max_scans}")
-    if start_s is not None and end_s is not None and end_s < start_s:
-        raise InputError(f"--end ({end_s} s) comes before --start ({start_s} s)")
+    def __post_init__(self) -> None:
+        if self.every < 1:
+            raise InputError(f"--every must be at least 1, not {self.every}")
+        if self.max_scans is not None and self.max_scans < 1:
+            raise InputError(f"--max-scans must be at least 1, not {self.max_scans}")
+        if self.start_s is not None and self.end_s is not None and self.end_s < self.start_s:
+            raise InputError(f"--end ({self.end_s} s) comes before --start ({self.start_s} s)")
+
+    def window_ns(self, log_start_ns: int | None) -> tuple[int | None, int | None]:
+        """[lo, hi) log-time bounds in ns of the window, for a log starting at `log_start_ns`."""
+        if log_start_ns is None:
+            return None, None
+        lo = None if self.start_s is None else log_start_ns + round(self.start_s * 1e9)
+        hi = None if self.end_s is None else log_start_ns + round(self.end_s * 1e9)
+        return lo, hi
 
 
 # --------------------------------------------------------------------------------------------- poses
@@ -215,24 +228,15 @@ class PoseTrack:
 
 
 def assemble(
-    events: Iterable[Event],
-    *,
-    path: str | Path,
-    topic: str,
-    with_poses: bool,
-    every: int = 1,
-    max_scans: int | None = None,
-    total: int | None = None,
-    progress: bool = False,
-    report: SourceReport | None = None,
+    events: Iterable[Event], options: ReadOptions, *, path: str | Path, topic: str, with_poses: bool, total: int | None
 ) -> Iterator[Scan]:
-    """Scans from a reader's events: keep every `every`-th cloud, decode it, drop invalid points,
-    attach the ground-truth pose, number the scans, stop after `max_scans`; warn at damage.
+    """Scans from a reader's events (`total` clouds in them, if known): keep every `every`-th cloud, decode it,
+    drop invalid points, attach the ground-truth pose, number the scans, stop after `max_scans`; warn at damage.
 
     A message that cannot be decoded is skipped with a warning naming its log time (listed in `report`);
     only a topic where not one message decodes is an error."""
-    check_window(None, None, every, max_scans)
-    report = report if report is not None else SourceReport()
+    every, max_scans = options.every, options.max_scans
+    report = options.report if options.report is not None else SourceReport()
     first_failure: str | None = None
     pending: deque[Scan] = deque()  # decoded scans waiting for a pose at or after their stamp
     track = PoseTrack()
@@ -262,7 +266,7 @@ def assemble(
                 return
             yield finish(pending.popleft())
 
-    with bar(total, desc=Path(str(path)).name, show=progress) as pbar:
+    with bar(total, desc=Path(str(path)).name, show=options.progress) as pbar:
         for ev in events:
             if isinstance(ev, Damage):
                 damage = report.damage = ev.reason

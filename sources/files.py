@@ -20,8 +20,8 @@ import numpy as np
 
 from aftershock.pipeline.errors import DamagedLogWarning, InputError
 from aftershock.pipeline.limits import block_cap_bytes
-from aftershock.pipeline.types import Scan, SourceReport
-from aftershock.sources.common import CloudMessage, DecodedCloud, Event, assemble, check_window, window_ns
+from aftershock.pipeline.types import Scan
+from aftershock.sources.common import CloudMessage, DecodedCloud, Event, ReadOptions, assemble
 
 SUFFIXES: Final[tuple[str, ...]] = (".pcd", ".ply", ".bin")
 FILE_PERIOD_NS: Final[int] = 100_000_000
@@ -271,31 +271,9 @@ def _decode_file(path: Path, stamp_ns: int) -> DecodedCloud:
     return DecodedCloud(cols, stamp_ns, "")
 
 
-def open_files(
-    path: str | Path,
-    *,
-    topic: str | None = None,
-    pose_topic: str | None = None,
-    start_s: float | None = None,
-    end_s: float | None = None,
-    max_scans: int | None = None,
-    every: int = 1,
-    progress: bool = False,
-    report: SourceReport | None = None,
-) -> Iterator[Scan]:
+def open_files(path: str | Path, options: ReadOptions) -> Iterator[Scan]:
     """Scans from a folder, glob or single point-cloud file. `topic`/`pose_topic` do not apply to files."""
-    del topic, pose_topic
-    check_window(start_s, end_s, every, max_scans)
     files = list_files(path)
-    lo, hi = window_ns(0, start_s, end_s)
-    return assemble(
-        events(files, lo, hi),
-        path=path,
-        topic=FILES_TOPIC,
-        with_poses=False,
-        every=every,
-        max_scans=max_scans,
-        total=len(files) if lo is None and hi is None else None,
-        progress=progress,
-        report=report,
-    )
+    lo, hi = options.window_ns(0)
+    total = len(files) if lo is None and hi is None else None
+    return assemble(events(files, lo, hi), options, path=path, topic=FILES_TOPIC, with_poses=False, total=total)

@@ -31,19 +31,18 @@ from aftershock.pipeline.errors import DamagedLogWarning, InputError
 from aftershock.pipeline.limits import block_cap_bytes
 from aftershock.pipeline.pointcloud2 import decode_pointcloud2, header_stamp_ns, pose_to_matrix
 from aftershock.pipeline.progress import bar
-from aftershock.pipeline.types import Scan, SourceReport
+from aftershock.pipeline.types import Scan
 from aftershock.sources.common import (
     CloudMessage,
     Damage,
     DecodedCloud,
     Event,
+    ReadOptions,
     Skipped,
     assemble,
-    check_window,
     choose_pose_topic,
     choose_topic,
     pose_event,
-    window_ns,
 )
 from aftershock.sources.foxglove import decode_foxglove_pointcloud
 from aftershock.sources.inflate import BlockTooLarge, inflate
@@ -452,34 +451,14 @@ def _decode_pose(decoder: Callable[[bytes], Any], data: bytes) -> tuple[int, np.
     return header_stamp_ns(pose), pose_to_matrix(pose.pose)
 
 
-def open_mcap(
-    path: Path,
-    *,
-    topic: str | None = None,
-    pose_topic: str | None = None,
-    start_s: float | None = None,
-    end_s: float | None = None,
-    max_scans: int | None = None,
-    every: int = 1,
-    progress: bool = False,
-    report: SourceReport | None = None,
-) -> Iterator[Scan]:
+def open_mcap(path: Path, options: ReadOptions) -> Iterator[Scan]:
     """Scans of one point-cloud topic of an MCAP file (checked now, read lazily); what was skipped and
-    the damage, if any, go into `report` as it reads."""
-    check_window(start_s, end_s, every, max_scans)
-    cat = read_catalog(path, progress=progress)
-    chosen = choose_topic(cat.types, topic, path)
-    pose = choose_pose_topic(cat.types, pose_topic, path)
-    lo, hi = window_ns(cat.start_ns, start_s, end_s)
-    total = cat.topics[chosen].count if start_s is None and end_s is None else None
+    the damage, if any, go into `options.report` as it reads."""
+    cat = read_catalog(path, progress=options.progress)
+    chosen = choose_topic(cat.types, options.topic, path)
+    pose = choose_pose_topic(cat.types, options.pose_topic, path)
+    lo, hi = options.window_ns(cat.start_ns)
+    total = cat.topics[chosen].count if options.start_s is None and options.end_s is None else None
     return assemble(
-        events(cat, {chosen}, pose, lo, hi),
-        path=path,
-        topic=chosen,
-        with_poses=pose is not None,
-        every=every,
-        max_scans=max_scans,
-        total=total,
-        progress=progress,
-        report=report,
+        events(cat, {chosen}, pose, lo, hi), options, path=path, topic=chosen, with_poses=pose is not None, total=total
     )

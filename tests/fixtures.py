@@ -16,6 +16,8 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from aftershock.pipeline.pointcloud2 import (
+    MSGDEF_SEPARATOR,
+    POINTCLOUD2_FIELDS,
     POINTCLOUD2_MSGDEF,
     POINTFIELD_MSGDEF,
     POSE_STAMPED_MSGDEF,
@@ -28,21 +30,13 @@ PERIOD_NS: Final[int] = 100_000_000
 Columns = Mapping[str, np.ndarray]
 
 # The ROS 1 definition as a ROS 1 recorder stores it (Header with seq, `time` stamp).
-ROS1_POINTCLOUD2_MSGDEF: Final[str] = f"""std_msgs/Header header
-uint32 height
-uint32 width
-sensor_msgs/PointField[] fields
-bool is_bigendian
-uint32 point_step
-uint32 row_step
-uint8[] data
-bool is_dense
-================================================================================
+ROS1_POINTCLOUD2_MSGDEF: Final[str] = f"""{POINTCLOUD2_FIELDS}
+{MSGDEF_SEPARATOR}
 MSG: std_msgs/Header
 uint32 seq
 time stamp
 string frame_id
-================================================================================
+{MSGDEF_SEPARATOR}
 MSG: sensor_msgs/PointField
 {POINTFIELD_MSGDEF}
 """

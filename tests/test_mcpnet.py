@@ -46,7 +46,7 @@ from aftershock.pipeline.classes import NUM_CLASSES, UNLABELLED
 from aftershock.pipeline.config import ClusterConfig, Config, Environment
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.label import Labeller, make_labeller
-from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller, distinct_pairs
+from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller, distinct_pairs, top_class
 from aftershock.pipeline.stream import run_stream
 from aftershock.pipeline.types import LabelledCloud, RunInfo
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -93,10 +93,10 @@ def test_labeller_predictions_do_not_depend_on_which_rows_are_asked_with() -> No
     labeller = MCPNetLabeller(Config(), ClusterConfig().beta_indoor)
     origin = np.zeros(3)
     rows = np.arange(len(vmap))
-    cls_all, _score_all, emb_all = labeller.predict(vmap, rows, origin, -1.0, True)
+    probs_all, emb_all = labeller.predict_probs(vmap, rows, origin, -1.0, True)
     pick = rows[[7, 300, 2]]
-    cls_few, _score_few, emb_few = labeller.predict(vmap, pick, origin, -1.0, True)
-    np.testing.assert_array_equal(cls_few, cls_all[pick])
+    probs_few, emb_few = labeller.predict_probs(vmap, pick, origin, -1.0, True)
+    np.testing.assert_array_equal(top_class(probs_few)[0], top_class(probs_all)[0][pick])
     np.testing.assert_allclose(emb_few, emb_all[pick], atol=1e-5)
 
 
@@ -125,7 +125,8 @@ def test_distinct_pairs_pool_what_the_draws_pool(color: bool) -> None:
     labeller = MCPNetLabeller(Config(), ClusterConfig().beta_indoor)
     rows = np.arange(len(vmap))
     origin = np.zeros(3)
-    cls, score, emb = labeller.predict(vmap, rows, origin, -1.0, color)
+    probs, emb = labeller.predict_probs(vmap, rows, origin, -1.0, color)
+    cls, score = top_class(probs)
     colors = vmap.colors if color else None
     pf = point_features(vmap.positions, colors, origin, -1.0)
     ctx_rows = vmap.context_rows(vmap.positions, 0.3, 50, uniform=context_draws(vmap.keys, 50))

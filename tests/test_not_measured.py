@@ -16,7 +16,7 @@ from aftershock.pipeline.cloud_io import write_cloud
 from aftershock.pipeline.config import DriftConfig, RerunConfig
 from aftershock.pipeline.damage.drift import measure_drift
 from aftershock.pipeline.mission import SAMPLE
-from aftershock.pipeline.types import LabelledCloud
+from aftershock.pipeline.types import DamageFound, LabelledCloud
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks.rerun_sink import RerunSink
 
@@ -75,7 +75,7 @@ def test_the_viewer_says_not_measured_and_draws_no_arrow(tmp_path: Path) -> None
     path = tmp_path / "one.rrd"
     sink = RerunSink(path, False, None, RerunConfig())
     [story] = measure_drift(_one_slab(np.random.default_rng(2)), DriftConfig()).stories
-    sink.damage([], None, [story])
+    sink.damage(DamageFound(stories=[story]))
     sink.close()
     rec = read_rrd(path)
     [label] = rec.texts(f"{L.STORIES}/s0/label", "Points3D:labels", static=True)
@@ -90,7 +90,7 @@ def test_the_legend_names_every_class_in_its_colour(tmp_path: Path) -> None:
 
     path = tmp_path / "legend.rrd"
     sink = RerunSink(path, False, None, RerunConfig())
-    sink.damage([], None, [])
+    sink.damage(DamageFound())
     sink.close()
     rec = read_rrd(path)
     names = rec.texts(L.LEGEND_NAMES, "Points2D:labels", static=True)
@@ -129,9 +129,8 @@ def test_crack_labels_do_not_pile_up(tmp_path: Path) -> None:
 
     path = tmp_path / "cracks.rrd"
     sink = RerunSink(path, False, None, RerunConfig())
-    sink.damage(
-        [crack(1, (0, 0, 1), 0.2, False), crack(2, (0, 0, 1.1), 0.1, True), crack(3, (0, 0, 3), 0.3, False)], None, []
-    )
+    cracks = [crack(1, (0, 0, 1), 0.2, False), crack(2, (0, 0, 1.1), 0.1, True), crack(3, (0, 0, 3), 0.3, False)]
+    sink.damage(DamageFound(cracks))
     sink.close()
     labels = read_rrd(path).texts(L.CRACKS, "Boxes3D:labels", static=True)
     assert labels[0] == "crack 1" and labels[1].startswith("crack 2: 10.0 cm long") and "wide" in labels[2]

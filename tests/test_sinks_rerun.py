@@ -24,7 +24,7 @@ from aftershock.pipeline.config import RerunConfig
 from aftershock.pipeline.errors import OutputError
 from aftershock.pipeline.geometry import voxel_downsample
 from aftershock.pipeline.sink import Stage
-from aftershock.pipeline.types import Crack, LabelledCloud, RunInfo, RunSummary, Story
+from aftershock.pipeline.types import Crack, DamageFound, LabelledCloud, RunInfo, RunSummary, Story
 from aftershock.sinks import rerun_blueprint as L
 from aftershock.sinks.rerun_sink import EmbeddingColors, RerunSink, log_id_of
 from aftershock.sinks.rrd_compact import compact
@@ -223,7 +223,7 @@ def test_refined_growth_and_damage_layers(tmp_path: Path) -> None:
     sink.refined(cloud, steps)
     crack = Crack(3, np.array([1.0, 1.0, 1.0]), 0.25, 0.004, 120, np.array([0, 0, 1.0]), np.array([1.0, 0, 0]), True)
     story = Story(1, 3.0, np.array([0, 0, 1.0, -3.0]), 3.0, 4.0, 5.0, 0.1, 0.1, 0.14, 1000)
-    sink.damage([crack], LabelledCloud(pts[:50], instance_ids=np.full(50, 3, np.uint32)), [story])
+    sink.damage(DamageFound([crack], LabelledCloud(pts[:50], instance_ids=np.full(50, 3, np.uint32)), [story]))
     sink.close()
     rec = read_rrd(path)
     assert L.LRGNET_STEP_TIMELINE in rec.timelines

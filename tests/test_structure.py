@@ -225,7 +225,16 @@ def test_a_structure_setting_out_of_range_is_one_line_and_exit_2() -> None:
     assert len(lines) == 1 and "structure.tile_m" in lines[0]
 
 
-@pytest.mark.parametrize("value", ["structure.keep_confidence=1.5", "structure.tiles_per_scan=0"])
+@pytest.mark.parametrize(
+    "value",
+    [
+        "structure.keep_confidence=1.5",
+        "structure.tiles_per_scan=0",
+        "structure.column_max_proud_m=2",
+        "structure.engaged_min_face=1.5",
+        "structure.beam_wall_reach_m=0",
+    ],
+)
 def test_every_structure_range_is_checked(value: str) -> None:
     from aftershock.pipeline.config import load_config
     from aftershock.pipeline.errors import InputError
@@ -269,3 +278,79 @@ def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> No
     rec = read_rrd(rrd)
     assert {"world/structure/floors", "world/structure/walls"} <= rec.under("world/structure")
     assert any("LineStrips3D:strips" in c for c in rec.components("world/structure/walls"))
+
+
+def engaged_room(proud: float = 0.25, width: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """A box room (8 x 6 m, 3 m high, no free column nor beam) with a column built into its wall at y = 6:
+    centred at x = 5, `width` wide along the wall, standing `proud` into the room; the wall's face is hidden
+    behind it."""
+    height, cx, half = 3.0, 5.0, width / 2
+    parts: list[tuple[np.ndarray, int]] = []
+    x, y = _grid(0, 8, 0, 6)
+    parts += [(np.c_[x, y, np.zeros_like(x)], C.FLOOR), (np.c_[x, y, np.full_like(x, height)], C.CEILING)]
+    for fixed, (lo, hi), along_x in (
+        (0.0, (0, 8), True),
+        (6.0, (0, 8), True),
+        (0.0, (0, 6), False),
+        (8.0, (0, 6), False),
+    ):
+        u, z = _grid(lo, hi, 0.05, height - 0.05)
+        if fixed == 6.0 and along_x:
+            keep = np.abs(u - cx) > half
+            u, z = u[keep], z[keep]
+        pts = np.c_[u, np.full_like(u, fixed), z] if along_x else np.c_[np.full_like(u, fixed), u, z]
+        parts.append((pts, C.WALL))
+    u, z = _grid(cx - half, cx + half, 0.05, height - 0.05)
+    parts.append((np.c_[u, np.full_like(u, 6.0 - proud), z], C.COLUMN))  # its face, parallel to the wall
+    d, z = _grid(6.0 - proud, 6.0, 0.05, height - 0.05)
+    for side in (cx - half, cx + half):  # and its two sides, perpendicular to it
+        parts.append((np.c_[np.full_like(d, side), d, z], C.COLUMN))
+    pts = np.concatenate([p for p, _ in parts])
+    cls = np.concatenate([np.full(len(p), c, np.uint16) for p, c in parts])
+    return pts, cls
+
+
+@pytest.mark.parametrize("proud", [0.2, 0.3])
+def test_a_column_built_into_a_wall_is_found_and_labelled_column(proud: float) -> None:
+    pts, truth = engaged_room(proud=proud)
+    vmap, rows = _map(pts, np.full(len(pts), C.WALL, np.uint16))  # the network took it for wall
+    model = StructureModel(StructureConfig(), Environment.INDOOR, vmap.voxel_size)
+    model.observe(vmap, np.array([4.0, 3.0, 1.0]))
+    model.update(vmap, sensor_z=1.0)
+    model.finish(vmap)
+    model.apply(vmap)
+    columns = [e for e in model.elements(vmap) if e.kind is Kind.COLUMN]
+    assert len(columns) == 1
+    col = columns[0]
+    assert np.allclose((col.lo[:2] + col.hi[:2]) / 2, [5.0, 6.0 - proud / 2], atol=0.12)
+    assert col.hi[0] - col.lo[0] < 0.7 and col.hi[2] - col.lo[2] > 2.5
+    got = vmap.class_ids[rows]
+    assert np.mean(got[truth == C.COLUMN] == C.COLUMN) > 0.7  # (its voxels at the floor and ceiling are slabs)
+    assert np.mean(got[truth == C.WALL] == C.WALL) > 0.95  # the wall beside it stays wall
+
+
+def test_a_wall_seen_from_behind_or_a_thin_walls_far_face_is_no_column() -> None:
+    """The same room seen from outside the column's wall: what stands off the plane is behind it, not proud."""
+    pts, _ = engaged_room(proud=0.25)
+    vmap, _ = _map(pts, np.full(len(pts), C.WALL, np.uint16))
+    model = StructureModel(StructureConfig(), Environment.INDOOR, vmap.voxel_size)
+    model.observe(vmap, np.array([4.0, 9.0, 1.0]))  # beyond the wall at y = 6
+    model.update(vmap, sensor_z=1.0)
+    model.finish(vmap)
+    assert not [e for e in model.elements(vmap) if e.kind is Kind.COLUMN]
+
+
+def test_a_walls_head_seen_without_its_lower_part_is_not_a_beam() -> None:
+    """A wall whose lower part is hidden (behind furniture, out of the scanner's view): its top strip hangs
+    under the ceiling, open below, like a beam's, but lies along the wall's plane; the real beam is kept."""
+    pts, truth = room()
+    far_wall = (truth == C.WALL) & (np.abs(pts[:, 1] - 6.0) < 1e-6)
+    hidden = far_wall & (pts[:, 2] < 2.4) & (pts[:, 0] > 1.0) & (pts[:, 0] < 7.0)
+    pts, truth = pts[~hidden], truth[~hidden]
+    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    beams = [e for e in model.elements(vmap) if e.kind is Kind.BEAM]
+    assert beams, "the beam along y = 4.5 is found"
+    assert all(abs((e.lo[1] + e.hi[1]) / 2 - 4.5) < 0.3 for e in beams), [(e.lo, e.hi) for e in beams]
+    head = far_wall[~hidden] & (pts[:, 2] > 2.4)
+    assert not np.any(vmap.class_ids[rows][head] == C.BEAM)

@@ -36,6 +36,7 @@ STRUCTURE_COLUMNS: Final[dict[str, tuple[str, ...]]] = {
     "structure_columns": ("column",),
     "structure_beams": ("beam",),
     "structure_grounds": ("ground",),
+    "structure_openings": ("window", "door"),
 }
 
 # (name, type, what); the order is the column order of the file and of the --json rows.

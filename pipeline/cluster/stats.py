@@ -14,7 +14,7 @@ from typing import Final
 import numpy as np
 
 from aftershock.pipeline.classes import NUM_CLASSES, SemanticClass
-from aftershock.pipeline.config import ClusterConfig
+from aftershock.pipeline.config import ClusterConfig, settings_from
 from aftershock.pipeline.voxel_map import VoxelMap
 
 _PLANE_CLASSES: Final = np.isin(
@@ -36,14 +36,7 @@ class Geometry:
 
     @classmethod
     def from_config(cls, cfg: ClusterConfig) -> Geometry:
-        return cls(
-            plane_min_voxels=cfg.plane_min_voxels,
-            plane_thickness=cfg.plane_thickness,
-            plane_min_spread_m=cfg.plane_min_spread_m,
-            plane_angle_deg=cfg.plane_angle_deg,
-            plane_offset_m=cfg.plane_offset_m,
-            plane_wide_m=cfg.plane_wide_m,
-        )
+        return settings_from(cfg, cls)
 
 
 class InstanceStats:

@@ -13,6 +13,7 @@ import typer
 from aftershock.pipeline.config import load_config
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.progress import note
+from aftershock.pipeline.types import DamageFound
 
 
 def parse_box(text: str) -> np.ndarray:
@@ -97,7 +98,7 @@ def cracks(
         if points is not None:
             points.instance_ids = result.crack_ids[result.mask].astype("uint32")
         view = cfg.rerun.model_copy(update={"map_voxel_m": result.resolution_m})  # the element as evaluated
-        save_recording(save, result.cloud, view, True, result.cracks, points, report=out)  # checked above
+        save_recording(save, result.cloud, view, True, DamageFound(result.cracks, points, report=out))  # checked above
         out["recording"] = str(save)
     if report is not None:
         text = json.dumps(out, indent=2)

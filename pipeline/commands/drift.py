@@ -10,6 +10,7 @@ import typer
 
 from aftershock.pipeline.config import load_config
 from aftershock.pipeline.progress import note
+from aftershock.pipeline.types import DamageFound
 
 
 def drift(
@@ -51,7 +52,7 @@ def drift(
     if save is not None:
         from aftershock.pipeline.mission import save_recording
 
-        save_recording(save, cloud, cfg.rerun, True, stories=result.stories, report=out)  # checked above
+        save_recording(save, cloud, cfg.rerun, True, DamageFound(stories=result.stories, report=out))  # checked above
         out["recording"] = str(save)
     if as_json:
         print(json.dumps(out, indent=2))

@@ -18,9 +18,9 @@ from typing import Final
 import numpy as np
 from scipy import ndimage
 
-from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.config import CrackConfig, settings_from
 from aftershock.pipeline.damage.faces import Ortho, fit_faces, unroll
-from aftershock.pipeline.damage.ridge import PIXEL_SPACINGS, cloud_channels
+from aftershock.pipeline.damage.ridge import PIXEL_SPACINGS, cloud_channels, masked_smooth
 from aftershock.pipeline.types import LabelledCloud
 
 _MAD_TO_SIGMA: Final = 1.4826
@@ -44,13 +44,6 @@ class RegionSettings:
     smooth_m: float  # the combined score is averaged over this before hysteresis (damage is a region)
     open_m: float  # ... after a grey opening by a disc this wide: evidence narrower (a joint's groove, a line) goes
     min_area_m2: float  # a region covers at least this much of the face
-
-
-def _smooth(image: np.ndarray, has: np.ndarray, sigma: float) -> np.ndarray:
-    """Normalised convolution: the Gaussian mean over the known pixels only (holes and rims do not pull it)."""
-    num = ndimage.gaussian_filter(np.where(has, image, 0.0), sigma, mode="constant")
-    den = ndimage.gaussian_filter(has.astype(np.float64), sigma, mode="constant")
-    return num / np.maximum(den, 1e-12)
 
 
 def _robust_z(x: np.ndarray, on: np.ndarray) -> np.ndarray:
@@ -77,14 +70,14 @@ def evidence(ortho: Ortho, scales_m: tuple[float, ...]) -> dict[str, np.ndarray]
         dark = np.full(has.shape, -np.inf)
         for s in scales_m:
             sig = max(s / px, 1.0)
-            d = _smooth(g, grey_ok, _SURROUND * sig) - _smooth(g, grey_ok, sig)
+            d = masked_smooth(g, grey_ok, _SURROUND * sig) - masked_smooth(g, grey_ok, sig)
             dark = np.maximum(dark, _robust_z(d, grey_ok))
         out["dark"] = np.where(grey_ok, dark, 0.0)
     dep_ok = has & np.isfinite(ortho.depth)
     dep = np.nan_to_num(ortho.depth)
     sig = max(_ROUGH_M / px, 1.0)
-    mean = _smooth(dep, dep_ok, sig)
-    spread = np.sqrt(np.clip(_smooth(dep * dep, dep_ok, sig) - mean**2, 0.0, None))
+    mean = masked_smooth(dep, dep_ok, sig)
+    spread = np.sqrt(np.clip(masked_smooth(dep * dep, dep_ok, sig) - mean**2, 0.0, None))
     out["rough"] = _robust_z(spread, dep_ok)
     out["deficit"] = _robust_z(-mean, dep_ok)
     chroma_ok = has & np.isfinite(ortho.chroma).all(axis=2)
@@ -92,7 +85,7 @@ def evidence(ortho: Ortho, scales_m: tuple[float, ...]) -> dict[str, np.ndarray]
         face = np.median(ortho.chroma[chroma_ok], axis=0)
         dist = np.zeros(has.shape)
         for i in range(2):
-            dist += (_smooth(np.nan_to_num(ortho.chroma[:, :, i]), chroma_ok, 1.0) - face[i]) ** 2
+            dist += (masked_smooth(np.nan_to_num(ortho.chroma[:, :, i]), chroma_ok, 1.0) - face[i]) ** 2
         out["color"] = _robust_z(np.sqrt(dist), chroma_ok)
     return out
 
@@ -108,7 +101,7 @@ def combined(ev: dict[str, np.ndarray], ortho: Ortho, settings: RegionSettings) 
     score = stack.sum(axis=0) if settings.combine == "sum" else stack.max(axis=0)
     # on the face: points within a couple of pixels (an empty pixel inside a jittered scan is no hole)
     cover = ndimage.gaussian_filter(has.astype(np.float64), 1.5, mode="constant") >= _COVER
-    score = _smooth(score, has, max(settings.smooth_m / ortho.pixel_m, 0.5)) if settings.smooth_m > 0 else score
+    score = masked_smooth(score, has, max(settings.smooth_m / ortho.pixel_m, 0.5)) if settings.smooth_m > 0 else score
     score = np.where(cover, score, 0.0)
     if settings.open_m > 0:  # a region is wide: what a disc of open_m does not fit in is a line or a groove
         r = max(round(settings.open_m / (2 * ortho.pixel_m)), 1)
@@ -188,14 +181,4 @@ def region_mask(cloud: LabelledCloud, spacing_m: float, settings: RegionSettings
 
 
 def settings_of(cfg: CrackConfig) -> RegionSettings:
-    return RegionSettings(
-        channels=tuple(cfg.region_channels),
-        scales_m=tuple(cfg.region_scales_m),
-        combine=cfg.region_combine,
-        high=cfg.region_high,
-        gate_ratio=cfg.region_gate_ratio,
-        low_ratio=cfg.region_low_ratio,
-        smooth_m=cfg.region_smooth_m,
-        open_m=cfg.region_open_m,
-        min_area_m2=cfg.region_min_area_m2,
-    )
+    return settings_from(cfg, RegionSettings, "region_")

@@ -17,7 +17,7 @@ from typing import Final
 import numpy as np
 from scipy import ndimage
 
-from aftershock.pipeline.config import CrackConfig
+from aftershock.pipeline.config import CrackConfig, settings_from
 from aftershock.pipeline.damage.faces import Ortho
 from aftershock.pipeline.types import LabelledCloud
 
@@ -45,10 +45,10 @@ class RidgeSettings:
     rim: bool = False  # at the face's rim, where one side is off the face, compare with the other side alone
 
 
-def _smooth(image: np.ndarray, has: np.ndarray, sigma: float) -> np.ndarray:
-    w = has.astype(np.float64)
+def masked_smooth(image: np.ndarray, has: np.ndarray, sigma: float) -> np.ndarray:
+    """Normalised convolution: the Gaussian mean over the known pixels only (holes and rims do not pull it)."""
     num = ndimage.gaussian_filter(np.where(has, image, 0.0), sigma, mode="constant")
-    den = ndimage.gaussian_filter(w, sigma, mode="constant")
+    den = ndimage.gaussian_filter(has.astype(np.float64), sigma, mode="constant")
     return num / np.maximum(den, 1e-12)
 
 
@@ -67,7 +67,7 @@ def line_contrast(
     """Contrast (H, W) of a dark line at scale `sigma_px`: the smaller of the two sides' smoothed values less
     the centre's, across the Hessian's direction; 0 where a side falls off the face or the spot is not line-like.
     """
-    s = _smooth(image, has, sigma_px)
+    s = masked_smooth(image, has, sigma_px)
     # on the face: points within a couple of pixels (a side that falls into a hole or off the face is no side)
     cover = ndimage.gaussian_filter(has.astype(np.float64), 1.5, mode="constant") >= _COVER
     syy, syx = np.gradient(np.gradient(s, axis=0), axis=(0, 1))
@@ -147,7 +147,7 @@ def paint(ortho: Ortho, max_chroma: float) -> np.ndarray:
     face = np.median(ortho.chroma[has], axis=0)
     dist = np.zeros(has.shape)
     for i in range(2):
-        dist += (_smooth(np.nan_to_num(ortho.chroma[:, :, i]), has, 1.0) - face[i]) ** 2
+        dist += (masked_smooth(np.nan_to_num(ortho.chroma[:, :, i]), has, 1.0) - face[i]) ** 2
     return 100.0 * np.sqrt(dist) > max_chroma
 
 
@@ -158,8 +158,8 @@ def crack_pixels(image: np.ndarray, ortho: Ortho, regions: np.ndarray, sigma_px:
     has = (ortho.count > 0) & np.isfinite(image)
     inside = ndimage.binary_dilation(regions > 0, iterations=2)
     img = np.nan_to_num(image)
-    background = _smooth(img, has & ~inside, sigma_px)
-    dark = background - _smooth(img, has, 0.5)
+    background = masked_smooth(img, has & ~inside, sigma_px)
+    dark = background - masked_smooth(img, has, 0.5)
     ref = dark[has & ~inside]
     med = float(np.median(ref)) if len(ref) else 0.0
     mad = _MAD_TO_SIGMA * float(np.median(np.abs(ref - med))) if len(ref) else 1.0
@@ -278,19 +278,7 @@ def detect_ridges(
 
 
 def settings_of(cfg: CrackConfig) -> RidgeSettings:
-    return RidgeSettings(
-        scales_m=tuple(cfg.ridge_scales_m),
-        channels=tuple(cfg.ridge_channels),
-        high=cfg.ridge_high,
-        low_ratio=cfg.ridge_low_ratio,
-        min_length_m=cfg.ridge_min_length_m,
-        min_elongation=cfg.ridge_min_elongation,
-        max_line_ratio=cfg.ridge_line_ratio,
-        max_chroma=cfg.ridge_max_chroma,
-        straight_width_m=cfg.ridge_straight_width_m,
-        member_z=cfg.ridge_member_z,
-        rim=cfg.ridge_rim,
-    )
+    return settings_from(cfg, RidgeSettings, "ridge_", max_line_ratio="ridge_line_ratio")
 
 
 def cloud_channels(cloud: LabelledCloud) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:

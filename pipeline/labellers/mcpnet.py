@@ -42,6 +42,7 @@ NO_COLOR: Final = "mcpnet-nocolor"  # the colour-free network's weights: models/
 CHUNK: Final = 4096  # voxels per forward pass; bounds memory at about 4096 x 50 x 200 floats
 RELABEL_PER_NEW: Final = 4  # with relabelling on: at most this many older voxels re-classed per new voxel
 EMBED_REACH_M: Final = 1.5  # embed_cloud: each point is seen from at most this far away, as in a scan
+NOT_VOTED: Final = np.iinfo(np.uint16).max
 
 
 def distinct_pairs(ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -52,6 +53,11 @@ def distinct_pairs(ctx_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keep[:, 1:] &= s[:, 1:] != s[:, :-1]
     owner, _ = np.nonzero(keep)
     return owner.astype(np.int64), s[keep].astype(np.int64)
+
+
+def top_class(probs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Class ids (K,) uint16 and scores (K,) float32 (the probability of that class) of probabilities (K, C)."""
+    return probs.argmax(axis=1).astype(np.uint16), probs.max(axis=1, initial=0.0)
 
 
 class MCPNetLabeller:
@@ -95,6 +101,9 @@ class MCPNetLabeller:
         # its class probabilities per map row (float16 keeps 28 bytes a voxel): a voxel whose class an instance
         # vote changed gets the probability the network gave that class as its confidence
         self.raw_prob = np.zeros((0, self.net.num_classes), np.float16)
+        # the class the last instance vote wrote per map row (NOT_VOTED: none since the row's own prediction): a
+        # vote rewrites only the rows whose voted class changed, and reports them (`label`'s return)
+        self.voted = np.zeros(0, np.uint16)
         self.rng = np.random.default_rng(0)  # which older voxels are relabelled
         # The stream's structure model (`use_structure`), for weights that read its evidence: as it stood after
         # the previous scan (its stage runs after this one), as in training. None: nothing known of the building.
@@ -119,19 +128,6 @@ class MCPNetLabeller:
     def config(self) -> NetConfig:
         return self.net
 
-    def predict(
-        self,
-        vmap: VoxelMap,
-        rows: np.ndarray,
-        origin: np.ndarray,
-        floor_z: float,
-        use_color: bool,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Class ids (K,) uint16, scores (K,) float32 (the softmax probability of that class) and embeddings
-        (K, E) float32 of map rows, seen from the robot at `origin` ((3,), or (K, 3) one per row)."""
-        prob, emb = self.predict_probs(vmap, rows, origin, floor_z, use_color)
-        return prob.argmax(axis=1).astype(np.uint16), prob.max(axis=1, initial=0.0), emb
-
     def predict_probs(
         self,
         vmap: VoxelMap,
@@ -140,7 +136,8 @@ class MCPNetLabeller:
         floor_z: float,
         use_color: bool,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Softmax class probabilities (K, C) float32 and embeddings (K, E) float32 of map rows (see `predict`)."""
+        """Softmax class probabilities (K, C) float32 and embeddings (K, E) float32 of map rows, seen from the
+        robot at `origin` ((3,), or (K, 3) one per row); `top_class` gives their classes and scores."""
         model, net = (self.model, self.net) if use_color else (self.mono_model, self.mono_net)
         rows = np.asarray(rows, dtype=np.int64)
         k = len(rows)
@@ -181,10 +178,11 @@ class MCPNetLabeller:
         draws = context_draws(vmap.keys[rows], net.coarse_points)
         return vmap.context_rows(vmap.positions[rows], net.coarse_cell_m, net.coarse_points, uniform=draws)
 
-    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray:
         """Label the voxels this scan opened. Earlier voxels are updated as more of the scene arrives: with
         `label.instance_vote` the instances this scan saw again take the class their voxels vote for; with
-        `label.relabel_old_voxels` older voxels seen again are re-predicted with the context they now have."""
+        `label.relabel_old_voxels` older voxels seen again are re-predicted with the context they now have.
+        Returns the rows whose class or score it rewrote besides the new ones."""
         origin = frame.pose[:3, 3] if frame.pose is not None else np.zeros(3)
         world = frame.world_points if frame.world_points is not None else np.zeros((0, 3))
         floor_z = floor_height(world)
@@ -198,10 +196,18 @@ class MCPNetLabeller:
         else:
             rows_old = np.zeros(0, np.int64)
         probs, emb = self.predict_probs(vmap, np.r_[rows, rows_old], origin, floor_z, use_color)
-        classes, scores = probs.argmax(axis=1).astype(np.uint16), probs.max(axis=1, initial=0.0)
+        classes, scores = top_class(probs)
         n = len(rows)
         self._grow(len(vmap))
         self.raw_class[rows], self.raw_score[rows], self.raw_prob[rows] = classes[:n], scores[:n], probs[:n]
+        given = frame.map_rows.given if frame.map_rows is not None else rows[:0]
+        given = given[vmap.class_ids[given] < self.net.num_classes] if len(given) else given
+        if len(given):  # labelled by the structure model (its element's class and confidence): they vote as such
+            self.raw_class[given], self.raw_score[given] = vmap.class_ids[given], vmap.scores[given]
+            self.raw_prob[given] = 0.0
+            self.raw_prob[given, self.raw_class[given]] = vmap.scores[given]
+        self.voted[rows] = NOT_VOTED
+        self.voted[given] = NOT_VOTED
         vmap.class_ids[rows] = classes[:n]
         vmap.scores[rows] = scores[:n]
         vmap.embeddings[rows] = emb[:n]
@@ -216,8 +222,18 @@ class MCPNetLabeller:
             )
             vmap.class_ids[up] = classes[n:][better]
             vmap.scores[up] = scores[n:][better]
+            self.voted[up] = NOT_VOTED
+        else:
+            up = rows_old
         if self.vote and frame.map_rows is not None:
-            self.vote_instances(vmap, vmap.instance_ids[frame.map_rows.rows])
+            return np.r_[up, self._vote(vmap, vmap.instance_ids[frame.map_rows.rows])]
+        return up
+
+    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
+        """Every voxel of these instances takes the class its instance's voxels vote for, each vote weighted
+        by the network's confidence (the network's own per-voxel predictions are kept for later votes); its
+        confidence becomes the probability the network gave it for that class."""
+        self._vote(vmap, instances)
 
     def _grow(self, n: int) -> None:
         if n > len(self.raw_class):
@@ -227,15 +243,17 @@ class MCPNetLabeller:
             prob = np.zeros((size, self.raw_prob.shape[1]), np.float16)
             prob[: len(self.raw_prob)] = self.raw_prob
             self.raw_prob = prob
+            voted = np.full(size, NOT_VOTED, np.uint16)
+            voted[: len(self.voted)] = self.voted
+            self.voted = voted
 
-    def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
-        """Every voxel of these instances takes the class its instance's voxels vote for, each vote weighted
-        by the network's confidence (the network's own per-voxel predictions are kept for later votes); its
-        confidence becomes the probability the network gave it for that class."""
+    def _vote(self, vmap: VoxelMap, instances: np.ndarray) -> np.ndarray:
+        """`vote_instances`; returns the rows it rewrote (those whose voted class changed since their last vote:
+        the others hold it already, or what the structure model wrote over it)."""
         touched = np.unique(instances)
         touched = touched[touched > 0]
         if not len(touched):
-            return
+            return np.zeros(0, np.int64)
         ids = vmap.instance_ids
         members = np.flatnonzero(np.isin(ids, touched))
         which = np.searchsorted(touched, ids[members])
@@ -243,9 +261,14 @@ class MCPNetLabeller:
         votes = np.bincount(
             which * c + self.raw_class[members], weights=self.raw_score[members], minlength=len(touched) * c
         )
-        voted = votes.reshape(len(touched), c).argmax(axis=1)[which]
-        vmap.class_ids[members] = voted.astype(np.uint16)
+        voted = votes.reshape(len(touched), c).argmax(axis=1)[which].astype(np.uint16)
+        self._grow(len(vmap))
+        change = self.voted[members] != voted
+        members, voted = members[change], voted[change]
+        vmap.class_ids[members] = voted
         vmap.scores[members] = self.raw_prob[members, voted]
+        self.voted[members] = voted
+        return members
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         """Link two voxels when their embeddings' cosine similarity exceeds β."""
@@ -268,7 +291,7 @@ class MCPNetLabeller:
         offset[:, 2] = 0.0
         dist = np.linalg.norm(offset, axis=1, keepdims=True)
         origin = stored - offset * np.minimum(1.0, EMBED_REACH_M / np.maximum(dist, 1e-9))
-        _, _, emb = self.predict(vmap, point_rows, origin, floor_height(pts), cloud.colors is not None)
+        _, emb = self.predict_probs(vmap, point_rows, origin, floor_height(pts), cloud.colors is not None)
         return emb
 
 

@@ -43,9 +43,11 @@ class TruthStandIn:
         self.embedding_dim = inner.embedding_dim
         self._vectors = np.zeros((0, max(inner.embedding_dim, 1)), np.float32)
 
-    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> None:
-        self.inner.label(vmap, new_rows, frame)
-        self._overwrite(vmap, new_rows)
+    def label(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray | None:
+        rewritten = self.inner.label(vmap, new_rows, frame)
+        given = frame.map_rows.given if frame.map_rows is not None else new_rows[:0]
+        self._overwrite(vmap, np.r_[new_rows, given])  # the rows the structure model labelled too
+        return None if self.what == "classes" else rewritten  # the true classes go over every voxel
 
     def vote_instances(self, vmap: VoxelMap, instances: np.ndarray) -> None:
         """The inner labeller's vote (the end of a run), and the truth put back over it."""

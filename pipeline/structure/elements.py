@@ -24,6 +24,8 @@ class Kind(StrEnum):
     COLUMN = "column"
     BEAM = "beam"
     GROUND = "ground"
+    WINDOW = "window"  # openings: a rectangle in a wall's face
+    DOOR = "door"
 
 
 CLASS_OF: Final[dict[Kind, SemanticClass]] = {
@@ -34,6 +36,7 @@ CLASS_OF: Final[dict[Kind, SemanticClass]] = {
     Kind.BEAM: SemanticClass.BEAM,
     Kind.GROUND: SemanticClass.GROUND,
 }
+OPENING_CLASS: Final[dict[Kind, SemanticClass]] = {Kind.WINDOW: SemanticClass.WINDOW, Kind.DOOR: SemanticClass.DOOR}
 
 
 @dataclass(slots=True)
@@ -49,12 +52,13 @@ class Element:
 
     @property
     def class_id(self) -> int:
-        return int(CLASS_OF[self.kind])
+        return int(CLASS_OF[self.kind] if self.kind in CLASS_OF else OPENING_CLASS[self.kind])
 
     def outline(self) -> np.ndarray:
-        """(5, 3) closed outline of a slab (its extent on its plane) or a wall (its face between its ends)."""
+        """(5, 3) closed outline of a slab (its extent on its plane), a wall (its face between its ends) or an
+        opening (its rectangle in the wall's face)."""
         lo, hi = self.lo, self.hi
-        if self.kind is Kind.WALL and self.plane is not None:
+        if self.kind in (Kind.WALL, Kind.WINDOW, Kind.DOOR) and self.plane is not None:
             n = self.plane[:2] / max(float(np.linalg.norm(self.plane[:2])), 1e-9)
             along = np.array([-n[1], n[0]])
             corners = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])

@@ -13,8 +13,9 @@ Incremental and amortised:
 - walls, columns and beams: per square tile of the map (`tile_m`); a tile is refitted when it gained
   `min_new_voxels`, at most `tiles_per_scan` tiles a scan (the most changed first), every changed tile at
   `finish()`. Walls are vertical RANSAC planes per tile, merged across tiles into walls (coplanar, touching);
-  columns are compact footprints occupied over most of the story's height; beams are elongated footprints
-  occupied just under a ceiling and open below;
+  columns are compact footprints occupied over most of the story's height, or runs proud of a wall's plane
+  (engaged); beams are elongated footprints occupied just under a ceiling, open below, off the walls
+  (`pipeline/structure/columns.py`);
 - new voxels are checked against the elements found so far as they arrive (a vectorised test per element).
 """
 
@@ -26,14 +27,16 @@ from itertools import pairwise
 from typing import Final
 
 import numpy as np
-from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from aftershock.pipeline.classes import UNLABELLED, SemanticClass
+from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticClass
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
+from aftershock.pipeline.structure.columns import fit_beams, fit_columns
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
+from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
+from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 
 log = logging.getLogger(__name__)
@@ -53,9 +56,6 @@ _MIN_FACE_FILL: Final = 0.4  # ... of its extent at least this share (a strip th
 _SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
 _MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
 _SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its extent (it grows as it is seen)
-_RING_CELLS: Final = 2  # a column stands free: the cells this far around its footprint are mostly empty
-_RING_MAX_SHARE: Final = 0.35
-_LINE_MAX_M: Final = 0.6  # a footprint on one line (one face seen) longer than this is a wall stub
 NON_STRUCTURAL: Final = np.ones(1 << 16, bool)  # per class id: may lie on an element (table, debris, board ...)
 NON_STRUCTURAL[[c.value for c in CLASS_OF.values()]] = False
 NON_STRUCTURAL[UNLABELLED] = False
@@ -171,6 +171,11 @@ class StructureModel:
         self.kind_cls = np.full(cap, UNLABELLED, np.uint16)  # that element's class (UNLABELLED: none)
         self.fused = np.full(cap, UNLABELLED, np.uint16)  # the class the structure gives (UNLABELLED: no say)
         self.fused_score = np.zeros(cap, np.float32)  # the confidence of that class (see `_fuse`)
+        self.has_net = np.ones(cap, bool)  # the network labelled the voxel (False: an element explained it on arrival)
+        self.lab_cls = np.full(cap, UNLABELLED, np.uint16)  # the labeller's latest class and score of the voxel
+        self.lab_score = np.zeros(cap, np.float32)  # (written back where the structure no longer has a say)
+        self.shown_cls = np.full(cap, UNLABELLED, np.uint16)  # what `apply` last wrote (UNLABELLED: the labeller's)
+        self.shown_score = np.zeros(cap, np.float32)
         self.hist = np.zeros(_HIST_BINS, np.int64)
         self.hist_base: int | None = None
         self.slabs: list[_Slab] = []
@@ -192,6 +197,14 @@ class StructureModel:
         self.refit_voxels = 0  # voxels the refits went through so far
         self.refits = 0  # tiles refitted so far (a test reads which, `last_tiles`)
         self.last_tiles: list[tuple[int, int]] = []
+        self.updated = 0  # rows up to here went through `update` (those up to `n` through `take`)
+        self.emb_of: dict[int, np.ndarray] = {}  # element id -> the mean embedding of its network-labelled voxels
+        self.applied = 0  # rows up to here were written by `apply`
+        self.dirty: list[np.ndarray] = []  # rows fused since the last `apply`
+        self.last_applied = 0  # rows the last `apply` wrote
+        self.support_counts: np.ndarray | None = None  # voxels per element id at the last fusion (see `_support`)
+        self.sight = Sightlines()  # where the sensor stood for each voxel (`observe`), for the openings
+        self.openings: list[Opening] = []
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -203,9 +216,12 @@ class StructureModel:
         if n <= len(self.net_cls):
             return
         cap = max(n, 2 * len(self.net_cls))
-        for name in ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused", "fused_score"):
+        names = ("net_cls", "net_score", "sensor_z", "tile_of", "zbin", "elem", "kind_cls", "fused", "fused_score")
+        for name in (*names, "has_net", "lab_cls", "lab_score", "shown_cls", "shown_score"):
             old = getattr(self, name)
-            fill = {"net_cls": UNLABELLED, "elem": -1, "kind_cls": UNLABELLED, "fused": UNLABELLED}.get(name, 0)
+            fills = {"net_cls": UNLABELLED, "elem": -1, "kind_cls": UNLABELLED, "fused": UNLABELLED, "has_net": 1}
+            fills.update(lab_cls=UNLABELLED, shown_cls=UNLABELLED)
+            fill = fills.get(name, 0)
             arr = np.full(cap, fill, old.dtype)
             arr[: len(old)] = old
             setattr(self, name, arr)
@@ -221,27 +237,94 @@ class StructureModel:
 
     # ------------------------------------------------------------------------------------------ per scan
 
-    def update(self, vmap: VoxelMap, sensor_z: float, finishing: bool = False) -> np.ndarray:
-        """Take the voxels opened since the last call (labelled by the network), refit what changed within
-        the budget, and return the rows whose structure class may have changed."""
+    def take(self, vmap: VoxelMap, sensor_z: float) -> np.ndarray:
+        """The voxels opened since the last call into their tiles and the slab histogram, and onto the elements
+        found so far. Returns those on an element where the structure has a say (a floor found): `explain`
+        labels them, the network need not."""
         first, n = self.n, len(vmap)
         self._grow(n)
         new = np.arange(first, n, dtype=np.int64)
+        if not len(new):
+            return new
+        self.sensor_z[new] = sensor_z
+        self._add_rows(vmap, new)
+        self.n = n
+        if self.outdoor:
+            self._ground_rows(vmap, new)
+        else:
+            self._join_elements(vmap, new)
+        on = new[self.kind_cls[new] != UNLABELLED]
+        self.arrived += len(new)
+        self.explained += len(on)
+        return on if self.has_floor else new[:0]
+
+    def explain(self, vmap: VoxelMap, new_rows: np.ndarray, frame: Frame) -> np.ndarray:
+        """Before the network: the scan's new voxels taken (`take`); those on a confirmed element get its class,
+        its confidence (its support) and its embedding (the mean of its voxels the network saw: an element is one
+        object for the clustering). Returns those rows: the network skips them (with colour only where
+        `skip_with_colour` says so)."""
+        assert frame.pose is not None, "a frame is registered before it is labelled"
+        given = self.take(vmap, float(frame.pose[2, 3]))
+        colour = frame.scan.colors is not None
+        if not self.cfg.skip_explained or (colour and not self.cfg.skip_with_colour) or not len(given):
+            return given[:0]
+        given = given[self.kind_cls[given] < NETWORK_CLASSES]  # the ground outdoors is no network's class: not skipped
+        emb, known = self._element_embeddings(vmap, given)
+        if vmap.embedding_dim:  # an element no network-labelled voxel is known on yet: its voxels go to the network
+            given, emb = given[known], emb[known]
+        vmap.class_ids[given] = self.kind_cls[given]
+        # the support as of the last scan's fusion (the fusion after the network gives them the current one)
+        vmap.scores[given] = self._support(given, self.support_counts)
+        if vmap.embedding_dim:
+            vmap.embeddings[given] = emb
+        self.has_net[given] = False
+        self.net_cls[given] = UNLABELLED  # no network label: a confident one cannot keep (see `_fuse`)
+        self.net_score[given] = 0.0
+        return given
+
+    def _element_embeddings(self, vmap: VoxelMap, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(K, E) unit mean embeddings of the network-labelled voxels of the element each row lies on, and whether
+        it has any. Computed once per element, on the voxels of the tiles the rows lie in (ids never return)."""
+        e = vmap.embedding_dim
+        elem = self.elem[rows]
+        uniq, inv = np.unique(elem, return_inverse=True)
+        missing = np.array([int(u) for u in uniq if int(u) not in self.emb_of], np.int64)
+        if e and len(missing):
+            cand = self._rows_of_tiles(np.unique(self.tile_of[rows[np.isin(elem, missing)]]))
+            cand = cand[self.has_net[cand] & np.isin(self.elem[cand], missing)]
+            owner = self.elem[cand]
+            order = np.argsort(owner, kind="stable")
+            ids, start = np.unique(owner[order], return_index=True)
+            if len(ids):
+                sums = np.add.reduceat(vmap.embeddings[cand[order]].astype(np.float64), start, axis=0)
+                norm = np.linalg.norm(sums, axis=1)
+                for j in np.flatnonzero(norm > 0):  # one iteration per element first seen this scan
+                    self.emb_of[int(ids[j])] = (sums[j] / norm[j]).astype(np.float32)
+        out = np.zeros((len(uniq), max(e, 1)), np.float32)
+        known = np.zeros(len(uniq), bool)
+        for k, u in enumerate(uniq.tolist()):  # one iteration per element the scan's voxels lie on
+            vec = self.emb_of.get(u)
+            if vec is not None:
+                out[k, :e] = vec
+                known[k] = True
+        return out[inv.ravel(), :e], known[inv.ravel()]
+
+    def _rows_of_tiles(self, tiles: np.ndarray) -> np.ndarray:
+        chunks = [self.tiles[int(t)].rows() for t in tiles]
+        return np.concatenate(chunks) if chunks else np.zeros(0, np.int64)
+
+    def update(self, vmap: VoxelMap, sensor_z: float, finishing: bool = False) -> np.ndarray:
+        """After the network labelled the scan's new voxels (those `take` or `explain` did not take are taken
+        now): refit what changed within the budget, and return the rows whose structure class may have changed."""
+        self.take(vmap, sensor_z)
+        new = np.arange(self.updated, self.n, dtype=np.int64)
+        self.updated = self.n
         changed = [new]
         if len(new):
-            self.net_cls[new] = vmap.class_ids[new]
-            self.net_score[new] = vmap.scores[new]
-            self.sensor_z[new] = sensor_z
-            self._add_rows(vmap, new)
-        self.n = n
+            net = new[self.has_net[new]]
+            self.net_cls[net] = vmap.class_ids[net]
+            self.net_score[net] = vmap.scores[net]
         changed.append(self._update_slabs(vmap, finishing))
-        if self.outdoor:
-            changed.append(self._ground_rows(vmap, new))
-        else:
-            changed.append(self._join_elements(vmap, new))
-        if not finishing:
-            self.arrived += len(new)
-            self.explained += int(np.count_nonzero(self.kind_cls[new] != UNLABELLED))
         changed.extend(self._refit_tiles(vmap, finishing))
         rows = np.unique(np.concatenate(changed)) if len(changed) > 1 else new
         self._fuse(vmap, rows)
@@ -252,15 +335,48 @@ class StructureModel:
         self.slab_search_n = 0
         self.final = True
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
+        self._find_openings(vmap)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
-    def apply(self, vmap: VoxelMap) -> None:
-        """Write the fused classes and their confidence into the map (the network's instance votes rewrite
-        classes and scores every scan)."""
-        fused = self.fused[: self.n]
-        where = fused != UNLABELLED
-        vmap.class_ids[: self.n][where] = fused[where]
-        vmap.scores[: self.n][where] = self.fused_score[: self.n][where]
+    def apply(self, vmap: VoxelMap, rewritten: np.ndarray | None = None) -> None:
+        """Write the fused classes and their confidence into the map where they changed, and the labeller's own
+        back where the structure no longer has a say. `rewritten`: the older rows the labeller wrote since the
+        last call (its instance votes; the new rows it labelled are known); None: it cannot say, every row is
+        compared with what was last written here."""
+        n = self.n
+        new = np.arange(self.applied, n, dtype=np.int64)
+        self.applied = n
+        if rewritten is None:  # the labeller's values: wherever the map no longer holds what was written here
+            old = np.arange(n - len(new), dtype=np.int64)
+            ours = (self.shown_cls[old] != UNLABELLED) & (vmap.class_ids[old] == self.shown_cls[old])
+            ours &= vmap.scores[old] == self.shown_score[old]
+            wrote = np.r_[old[~ours], new]
+        else:
+            wrote = np.r_[np.asarray(rewritten, np.int64), new]
+        self.lab_cls[wrote] = vmap.class_ids[wrote]
+        self.lab_score[wrote] = vmap.scores[wrote]
+        rows = np.unique(np.concatenate([wrote, *self.dirty]))
+        self.dirty = []
+        self.last_applied = len(rows)
+        fused = self.fused[rows]
+        on = fused != UNLABELLED
+        vmap.class_ids[rows] = np.where(on, fused, self.lab_cls[rows])
+        vmap.scores[rows] = np.where(on, self.fused_score[rows], self.lab_score[rows])
+        self.shown_cls[rows] = fused
+        self.shown_score[rows] = np.where(on, self.fused_score[rows], 0.0)
+
+    def observe(self, vmap: VoxelMap, origin: np.ndarray) -> None:
+        """The voxels opened since the last call were seen from a sensor at `origin` (levelled map frame)."""
+        self.sight.observe(len(vmap), origin)
+
+    def _find_openings(self, vmap: VoxelMap) -> None:
+        """Windows and doors in the walls found (pipeline.structure.openings), their voxels taking their class."""
+        for op in self.openings:  # one iteration per opening found before
+            mine = op.rows[self.elem[op.rows] == op.id]
+            self.elem[mine] = -1
+            self.kind_cls[mine] = UNLABELLED
+        self.openings = find_openings(self, vmap, self.sight)
+        mark_openings(self, self.openings)
 
     def _add_rows(self, vmap: VoxelMap, rows: np.ndarray) -> None:
         pos = vmap.positions[rows]
@@ -561,134 +677,10 @@ class StructureModel:
         return counts.reshape(shape), origin, rows, cell
 
     def _fit_columns(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
-        cfg = self.cfg
-        zf, zc = storey
-        margin = 0.15
-        # occupied from the floor up to the story's head, or as high as a column must reach at least (a scanner
-        # close to the floor sees a column's head only from far away, a ceiling perhaps never)
-        reach = min(zc - zf - 2 * margin, cfg.column_min_height_m)
-        full = max(1.0, reach / self.voxel)
-        counts, origin, rows, _ = self._footprints(vmap, block, zf + margin, zf + margin + reach)
-        if not len(rows):
-            return
-        cover = counts / full
-        tall = cover >= cfg.column_min_cover
-        labels, num = ndimage.label(tall, structure=np.ones((3, 3)))
-        if not num:
-            return
-        occupied = ndimage.binary_dilation(cover >= 0.25)
-        max_cells = cfg.column_max_width_m / self.voxel
-        pieces = [self.pieces[p] for p in self._block_pieces(i)]
-        for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
-            mask = labels[sl] == k
-            size = np.array(mask.shape)
-            if size.max() > max_cells or mask.sum() < 2:
-                continue
-            if size.min() <= 1 and size.max() * self.voxel > _LINE_MAX_M:
-                continue  # one line of cells: a wall stub seen edge-on
-            ring_sl = tuple(slice(max(s.start - _RING_CELLS, 0), s.stop + _RING_CELLS) for s in sl)
-            ring = occupied[ring_sl].copy()
-            inner = np.zeros_like(ring)
-            inner[tuple(slice(s.start - r.start, s.stop - r.start) for s, r in zip(sl, ring_sl, strict=True))] = mask
-            grown = ndimage.binary_dilation(inner, iterations=1)
-            around = ndimage.binary_dilation(inner, iterations=_RING_CELLS) & ~grown
-            if around.sum() and ring[around].mean() > _RING_MAX_SHARE:
-                continue  # attached to something tall (a wall between openings): not free-standing
-            lo_cell = np.array([sl[0].start, sl[1].start]) + origin
-            hi_cell = np.array([sl[0].stop, sl[1].stop]) + origin
-            centre = (lo_cell + hi_cell) / 2 * self.voxel
-            if self._on_wall_line(centre, (hi_cell - lo_cell) * self.voxel, pieces):
-                continue  # a wall's end or the piece between two openings, not a column
-            if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
-                continue  # the tile its centre lies in owns it
-            e = Element(
-                self._new_id(),
-                Kind.COLUMN,
-                np.r_[lo_cell * self.voxel, zf],
-                np.r_[hi_cell * self.voxel, zc],
-                axis=np.array([0.0, 0.0, 1.0]),
-            )
-            self.columns[e.id] = e
-            self.tiles[i].elements.append(e.id)
-            on = self._in_box(vmap, block, e)
-            self.elem[on] = e.id
-            self.kind_cls[on] = SemanticClass.COLUMN
-
-    @staticmethod
-    def _on_wall_line(centre: np.ndarray, size: np.ndarray, pieces: list[_Piece]) -> bool:
-        """Whether a footprint lies on the line of a wall piece, within its extent or just past its ends."""
-        for p in pieces:  # one iteration per wall piece nearby
-            off = abs(float(centre @ p.normal + p.offset))
-            along = float(centre @ np.array([-p.normal[1], p.normal[0]]))
-            if off < 0.5 * float(size.max()) + 0.1 and p.u[0] - _WALL_GAP_M < along < p.u[1] + _WALL_GAP_M:
-                return True
-        return False
-
-    def _in_box(self, vmap: VoxelMap, rows: np.ndarray, e: Element) -> np.ndarray:
-        pos = vmap.positions[rows]
-        thr = self.cfg.plane_threshold_m
-        inside = np.all((pos >= e.lo - thr) & (pos <= e.hi + thr), axis=1) & (self.elem[rows] < 0)
-        return rows[inside]
+        fit_columns(self, vmap, i, block, storey)  # free-standing and engaged (pipeline/structure/columns.py)
 
     def _fit_beams(self, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
-        cfg = self.cfg
-        zf, zc = storey
-        if not any(s.kind is Kind.CEILING for s in self.slabs):
-            return  # a beam hangs under a slab
-        hang, origin, rows, cell = self._footprints(vmap, block, zc - cfg.beam_max_depth_m, zc - cfg.plane_threshold_m)
-        if not len(rows):
-            return
-        below, b_origin, _, _ = self._footprints(vmap, block, zf + 0.15, zc - cfg.beam_max_depth_m, free_only=False)
-        full = max(1.0, (zc - cfg.beam_max_depth_m - zf - 0.15) / self.voxel)
-        support = np.zeros(hang.shape, np.float64)
-        if below.size:  # the same cells in the grid of what stands below (a wall's head is not a beam)
-            off = b_origin - origin
-            xs, ys = np.nonzero(below)
-            xs, ys = xs + off[0], ys + off[1]
-            ok = (xs >= 0) & (ys >= 0) & (xs < hang.shape[0]) & (ys < hang.shape[1])
-            support[xs[ok], ys[ok]] = below[xs[ok] - off[0], ys[ok] - off[1]] / full
-        cand = (hang > 0) & (support < 0.3)
-        labels, _ = ndimage.label(cand, structure=np.ones((3, 3)))
-        for k, sl in enumerate(ndimage.find_objects(labels), start=1):  # one iteration per candidate footprint
-            xs, ys = np.nonzero(labels[sl] == k)
-            if len(xs) < 3:
-                continue
-            pts = np.c_[xs + sl[0].start, ys + sl[1].start].astype(np.float64) * self.voxel
-            mean = pts.mean(axis=0)
-            _, vec = np.linalg.eigh(np.cov((pts - mean).T) + 1e-9 * np.eye(2))
-            axis = vec[:, 1]
-            along, across = (pts - mean) @ axis, (pts - mean) @ vec[:, 0]
-            length, width = np.ptp(along) + self.voxel, np.ptp(across) + self.voxel
-            if length < cfg.beam_min_length_m or width > cfg.beam_max_width_m:
-                continue
-            if len(xs) * self.voxel**2 < 0.5 * length * width:
-                continue  # not a bar: the corner where two walls meet the ceiling, a lamp's outline
-            centre = mean + origin * self.voxel
-            if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), self.tile_xy[i]):
-                continue
-            members = np.isin(
-                cell[:, 0] * hang.shape[1] + cell[:, 1], (xs + sl[0].start) * hang.shape[1] + ys + sl[1].start
-            )
-            on = rows[members]
-            if not len(on):
-                continue
-            pos = vmap.positions[on]
-            # a beam shows its underside: a flat bottom across most of its footprint (a wall's head does not)
-            bottom = pos[:, 2] < pos[:, 2].min() + 2 * cfg.plane_threshold_m
-            under_cells = len(np.unique(cell[members][bottom], axis=0))
-            if under_cells < 0.5 * len(xs):
-                continue
-            e = Element(
-                self._new_id(),
-                Kind.BEAM,
-                np.r_[pos[:, :2].min(axis=0), pos[:, 2].min()],
-                np.r_[pos[:, :2].max(axis=0), zc],
-                axis=np.r_[axis, 0.0],
-            )
-            self.beams[e.id] = e
-            self.tiles[i].elements.append(e.id)
-            self.elem[on] = e.id
-            self.kind_cls[on] = SemanticClass.BEAM
+        fit_beams(self, vmap, i, block, storey)  # under a slab, not a wall's head (pipeline/structure/columns.py)
 
     def _fit_walls(self, vmap: VoxelMap, i: int, rows: np.ndarray, storey: tuple[float, float] | None) -> None:
         """Vertical planes of a tile, one after another (RANSAC); each a wall piece with its voxels."""
@@ -830,6 +822,7 @@ class StructureModel:
         """The class the structure gives each row (UNLABELLED where the network's label stands)."""
         if not len(rows):
             return
+        self.dirty.append(rows)  # `apply` writes them
         if not self.has_floor:
             self.fused[rows] = UNLABELLED  # no floor, no structure: the network alone (one warning says so)
             return
@@ -876,20 +869,23 @@ class StructureModel:
         self.fused[rows] = out
         self.fused_score[rows] = np.where(out != UNLABELLED, score, 0.0)
 
-    def _support(self, rows: np.ndarray) -> np.ndarray:
+    def _support(self, rows: np.ndarray, counts: np.ndarray | None = None) -> np.ndarray:
         """Per row, the geometric support of the element it lies on (0 off any): the element's voxels (a wall's
-        over all its pieces) over the voxels that confirm a slab (`slab_min_voxels`), capped at 1."""
+        over all its pieces) over the voxels that confirm a slab (`slab_min_voxels`), capped at 1. `counts`: the
+        voxels per element as counted before (`support_counts`), else counted now."""
         elem = self.elem[rows]
         g = np.zeros(len(rows))
         if not np.any(elem >= 0):
             return g
-        owner = self.elem[: self.n]
-        counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1).astype(np.float64)
-        if self.wall_of_piece:  # a wall piece counts its whole wall
-            pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
-            walls = np.fromiter(self.wall_of_piece.values(), np.int64, len(pids))
-            per_wall = np.bincount(walls, weights=counts[pids], minlength=int(walls.max()) + 1)
-            counts[pids] = per_wall[walls]
+        if counts is None or len(counts) <= int(elem.max()):
+            owner = self.elem[: self.n]
+            counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1).astype(np.float64)
+            if self.wall_of_piece:  # a wall piece counts its whole wall
+                pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
+                walls = np.fromiter(self.wall_of_piece.values(), np.int64, len(pids))
+                per_wall = np.bincount(walls, weights=counts[pids], minlength=int(walls.max()) + 1)
+                counts[pids] = per_wall[walls]
+            self.support_counts = counts
         on = elem >= 0
         g[on] = np.minimum(counts[elem[on]] / self.cfg.slab_min_voxels, 1.0)
         return g
@@ -938,6 +934,7 @@ class StructureModel:
         out.extend(
             Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
         )
+        out.extend(op.element() for op in self.openings)
         if self.outdoor and np.any(self.kind_cls[: self.n] == SemanticClass.GROUND) and vmap is not None:
             g = vmap.positions[: self.n][self.kind_cls[: self.n] == SemanticClass.GROUND]
             out.append(Element(0, Kind.GROUND, g.min(axis=0), g.max(axis=0)))

@@ -110,15 +110,16 @@ def debris_pile(
 ) -> int:
     """A mound of broken concrete pieces (and some rebar), one debris instance."""
     inst = builder.new_instance(SemanticClass.DEBRIS)
-    # the body of the mound: a few broken slab chunks leaning on each other
-    for _ in range(int(np.clip(radius * 3, 2, 6))):
-        r, a = radius * rng.uniform(0, 0.45), rng.uniform(0, 2 * np.pi)
-        size = (radius * rng.uniform(0.5, 1.0), radius * rng.uniform(0.4, 0.8), rng.uniform(0.12, 0.3))
-        rx, ry = rng.uniform(-0.5, 0.5, 2)
-        rot = rotation_xyz(rx, ry, rng.uniform(-np.pi, np.pi))
-        col = colors[int(rng.integers(len(colors)))]
+
+    def piece(
+        at: tuple[float, float, float],
+        size: np.ndarray | tuple[float, float, float],
+        rot: np.ndarray,
+        col: tuple[int, int, int],
+    ) -> None:
+        """One broken piece of the mound."""
         builder.add_box(
-            (center[0] + r * np.cos(a), center[1] + r * np.sin(a), floor_z + height * rng.uniform(0.15, 0.45)),
+            at,
             size,
             cls=SemanticClass.DEBRIS,
             instance=inst,
@@ -128,6 +129,21 @@ def debris_pile(
             story=story,
             jitter_color=0.15,
         )
+
+    # the body of the mound: a few broken slab chunks leaning on each other
+    for _ in range(int(np.clip(radius * 3, 2, 6))):
+        r, a = radius * rng.uniform(0, 0.45), rng.uniform(0, 2 * np.pi)
+        size = (radius * rng.uniform(0.5, 1.0), radius * rng.uniform(0.4, 0.8), rng.uniform(0.12, 0.3))
+        rx, ry = rng.uniform(-0.5, 0.5, 2)
+        rot = rotation_xyz(rx, ry, rng.uniform(-np.pi, np.pi))
+        col = colors[int(rng.integers(len(colors)))]
+        piece(
+            (center[0] + r * np.cos(a), center[1] + r * np.sin(a), floor_z + height * rng.uniform(0.15, 0.45)),
+            size,
+            rot,
+            col,
+        )
+    # then many smaller pieces, larger and higher towards the middle
     n = int(np.clip(radius * radius * 45 * rng.uniform(0.7, 1.3), 15, 160))
     rho = radius * np.sqrt(rng.uniform(0, 1, n))
     phi = rng.uniform(0, 2 * np.pi, n)
@@ -136,17 +152,7 @@ def debris_pile(
     for i in range(n):
         rot = rotation_xyz(*rng.uniform(-np.pi, np.pi, 3))
         col = colors[int(rng.integers(len(colors)))]
-        builder.add_box(
-            (center[0] + rho[i] * np.cos(phi[i]), center[1] + rho[i] * np.sin(phi[i]), z[i]),
-            sizes[i],
-            cls=SemanticClass.DEBRIS,
-            instance=inst,
-            material=RUBBLE,
-            rotation=rot,
-            color=col,
-            story=story,
-            jitter_color=0.15,
-        )
+        piece((center[0] + rho[i] * np.cos(phi[i]), center[1] + rho[i] * np.sin(phi[i]), z[i]), sizes[i], rot, col)
     for _ in range(int(rng.integers(0, 4))):  # bent rebar sticking out
         rx, ry = rng.uniform(-1.2, 1.2, 2)
         rot = rotation_xyz(rx, ry, rng.uniform(-np.pi, np.pi))

@@ -5,7 +5,7 @@ Add a profile by adding a `SensorProfile` to `PROFILES`; everything else reads t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 from typing import Final
 
@@ -127,29 +127,26 @@ def _ouster(model: str, beams: int) -> SensorProfile:
     )
 
 
+_VLP16: Final = SensorProfile(
+    name="vlp16",
+    elevations_deg=_VLP16_ELEVATIONS,
+    azimuth_step_deg=0.2,
+    rate_hz=10.0,
+    min_range_m=0.4,
+    max_range_m=100.0,
+    range_noise_m=0.015,
+    dropout=0.02,
+    firing_interval_s=2.304e-6,
+    description="Velodyne VLP-16: 16 beams over ±15°, 0.2° azimuth at 10 Hz, ~100 m, ±3 cm",
+)
+
 PROFILES: Final[dict[str, SensorProfile]] = {
-    "vlp16": SensorProfile(
-        name="vlp16",
-        elevations_deg=_VLP16_ELEVATIONS,
-        azimuth_step_deg=0.2,
-        rate_hz=10.0,
-        min_range_m=0.4,
-        max_range_m=100.0,
-        range_noise_m=0.015,
-        dropout=0.02,
-        firing_interval_s=2.304e-6,
-        description="Velodyne VLP-16: 16 beams over ±15°, 0.2° azimuth at 10 Hz, ~100 m, ±3 cm",
-    ),
-    "vlp16-20hz": SensorProfile(
+    "vlp16": _VLP16,
+    "vlp16-20hz": replace(
+        _VLP16,
         name="vlp16-20hz",
-        elevations_deg=_VLP16_ELEVATIONS,
         azimuth_step_deg=0.4,
         rate_hz=20.0,
-        min_range_m=0.4,
-        max_range_m=100.0,
-        range_noise_m=0.015,
-        dropout=0.02,
-        firing_interval_s=2.304e-6,
         description="Velodyne VLP-16 in its 20 Hz mode: 0.4° azimuth, half the points of a sweep",
     ),
     "dense": SensorProfile(

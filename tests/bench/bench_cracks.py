@@ -21,6 +21,7 @@ from typing import Any, Final
 
 import numpy as np
 import pytest
+from cracks_common import far_share, sim_spacing
 
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import CrackConfig, DriftConfig
@@ -87,11 +88,11 @@ _HEADER: Final = (
 )
 
 
-def _finish(fig: Any, ax: Any, name: str, **labels: Any) -> None:
-    """Label the axes, add the legend and write the figure to docs/NAME."""
+def _finish_f1(fig: Any, ax: Any, name: str, xlabel: str, title: str) -> None:
+    """Label the axes of an F1 plot, add the legend and write the figure to docs/NAME."""
     import matplotlib.pyplot as plt
 
-    ax.set(**labels)
+    ax.set(xlabel=xlabel, ylabel="F1", title=title, ylim=(0, 1))
     ax.legend()
     fig.tight_layout()
     fig.savefig(DOCS / name, dpi=120)
@@ -163,15 +164,7 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
         print(f"  {name}: " + " ".join(f"{r * 1000:g}mm {v:.2f}" for r, v in zip(spacings, f1, strict=True)))
         ax.plot(np.array(spacings) * 1000, f1, marker="o", label=name)
     ax.set_xscale("log")
-    _finish(
-        fig,
-        ax,
-        "cracks_spacing.png",
-        xlabel="grid spacing (mm)",
-        ylabel="F1",
-        title="F1 against point spacing",
-        ylim=(0, 1),
-    )
+    _finish_f1(fig, ax, "cracks_spacing.png", "grid spacing (mm)", "F1 against point spacing")
 
     print("\nF1 against the share of crack points (crack points dropped at random):")
     fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -189,15 +182,7 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
             f1.append(find_cracks(cloud.select(keep), cfg, mask[keep]).scores.f1)  # type: ignore[union-attr]
         print(f"  {name}: " + " ".join(f"{s:.3f} {v:.2f}" for s, v in zip(shares, f1, strict=True)))
         ax.plot(np.array(shares) * 100, f1, marker="o", label=name)
-    _finish(
-        fig,
-        ax,
-        "cracks_share.png",
-        xlabel="crack points (%)",
-        ylabel="F1",
-        title="F1 against the share of crack points",
-        ylim=(0, 1),
-    )
+    _finish_f1(fig, ax, "cracks_share.png", "crack points (%)", "F1 against the share of crack points")
 
     from aftershock.sources.simulator.cracks import cracked_element
 
@@ -211,15 +196,7 @@ def test_plots(elements: dict[str, tuple[LabelledCloud, np.ndarray]]) -> None:
             f1.append(find_cracks(cloud, cfg, mask).scores.f1)  # type: ignore[union-attr]
         print(f"  {kind}: " + " ".join(f"{w:.1f}mm {v:.2f}" for w, v in zip(widths, f1, strict=True)))
         ax.scatter(widths, f1, label=kind)
-    _finish(
-        fig,
-        ax,
-        "cracks_width.png",
-        xlabel="mean crack width of the element (mm)",
-        ylabel="F1",
-        title="F1 against crack width",
-        ylim=(0, 1),
-    )
+    _finish_f1(fig, ax, "cracks_width.png", "mean crack width of the element (mm)", "F1 against crack width")
 
 
 def test_unseen_simulated_elements() -> None:
@@ -278,21 +255,6 @@ TINT_GRID: Final = tuple(np.round(np.arange(0.1, 5.01, 0.1), 2))  # min_chroma_c
 SHARE_GRID: Final = (1.0, 0.5, 0.3, 0.2, 0.15, 0.1)  # max_share candidates, loosest first
 ELONGATION_GRID: Final = (0.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0)  # min_area_elongation candidates, loosest first
 MAX_F1_LOSS: Final = 0.01  # the narrowness test may cost the simulated cracked calibration elements this much F1
-
-
-def _sim_spacing(kind: str) -> float:
-    return 0.008 if kind == "slab" else 0.003
-
-
-def _far_share(points: np.ndarray, truth: np.ndarray, mask: np.ndarray, reach_m: float = 0.10) -> float:
-    """Share of the points more than `reach_m` from any true crack point that were flagged."""
-    from scipy.spatial import cKDTree
-
-    far = np.ones(len(points), bool)
-    if truth.any():
-        dist, _ = cKDTree(points[truth]).query(points, k=1, distance_upper_bound=reach_m, workers=-1)
-        far = ~np.isfinite(dist)
-    return float(mask[far].mean()) if far.any() else float("nan")
 
 
 def _flagged_at(result: CrackResult, limit: float, contrast: Callable[[Crack], float]) -> float:
@@ -422,7 +384,7 @@ def test_leave_one_object_out(
     monkeypatch.setattr(report, "detect", cached_detect)
 
     def sim(kind: str, seed: int, intact: bool) -> tuple[LabelledCloud, np.ndarray]:
-        cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind), intact=intact)
+        cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), intact=intact)
         return cloud, mask
 
     objects = dict(elements)
@@ -474,7 +436,7 @@ def test_leave_one_object_out(
             s = r.scores
             row[name] = {
                 "flag": float(r.mask.mean()),
-                "far": _far_share(r.cloud.points, r.truth, r.mask),  # type: ignore[arg-type]
+                "far": far_share(r.cloud.points, r.truth, r.mask),  # type: ignore[arg-type]
                 "f1": s.f1 if s is not None and r.truth.any() else float("nan"),  # type: ignore[union-attr]
                 "width": s.width_error_m if s is not None and r.truth.any() else float("nan"),  # type: ignore[union-attr]
             }
@@ -546,7 +508,7 @@ def test_score_contrast_real_against_simulated(elements: dict[str, tuple[Labelle
     print("\nCrack points' score above the bulk (robust sigmas, median over the true crack points):")
     print("  real: " + ", ".join(f"{n} {contrast(c, m):.1f}" for n, (c, m) in elements.items()))
     for kind in SIM_KINDS:
-        z = [contrast(*cracked_element(kind, seed, _sim_spacing(kind))[:2]) for seed in (100, 101)]
+        z = [contrast(*cracked_element(kind, seed, sim_spacing(kind))[:2]) for seed in (100, 101)]
         print(f"  simulated {kind}: " + ", ".join(f"{v:.1f}" for v in z))
 
 
@@ -573,7 +535,7 @@ def test_depth_of_true_crack_points(elements: dict[str, tuple[LabelledCloud, np.
         print(f"  {name:9s} {depth(cloud, mask)}")
     for kind in SIM_KINDS:
         for seed in (100, 101):
-            cloud, mask, _ = cracked_element(kind, seed, _sim_spacing(kind))
+            cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind))
             print(f"  {kind}-{seed:<4d} {depth(cloud, mask)}")
 
 

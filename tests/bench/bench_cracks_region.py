@@ -29,11 +29,12 @@ import numpy as np
 import pytest
 from cracks_common import (
     PUBLISHED,
-    PUBLISHED_WIDTH,
     crack_row,
     evaluated_cloud,
     f1_score,
     far_share,
+    print_leave_one_out,
+    print_old_default,
     print_simulated_f1,
     print_speed_against_old_default,
     sim_spacing,
@@ -131,8 +132,11 @@ def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarra
     def choose(others: tuple[str, ...]) -> str:
         return max(usable, key=lambda n: float(np.mean([f1[n][o] for o in others])))
 
+    def calibrated(name: str) -> CrackConfig:  # a candidate at its calibrated seed score
+        return _cfg(name, float(highs[name]))  # type: ignore[arg-type]
+
     default = choose(REAL)
-    cfg_default = _cfg(default, float(highs[default]))  # type: ignore[arg-type]
+    cfg_default = calibrated(default)
     shipped = CrackConfig()
     same = all(getattr(shipped, k) == getattr(cfg_default, k) for k in (*CANDIDATES[default], "region_high"))
     print(f"\nChosen on all four real elements (the shipped region settings): {default}, region_high {highs[default]}")
@@ -142,25 +146,14 @@ def test_region_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarra
     )
 
     print("\nRegion, leave-one-out (each element scored with the candidate best on the other three):")
-    loo: dict[str, CrackResult] = {}
-    for el in REAL:
-        pick = choose(tuple(o for o in REAL if o != el))
-        cloud, mask = real[el]
-        loo[el] = find_cracks(cloud, _cfg(pick, float(highs[pick])), mask)  # type: ignore[arg-type]
-        print(crack_row(el, loo[el], PUBLISHED[el]) + f"  [{pick}, high {highs[pick]}]")
-    print(f"  published width: {PUBLISHED_WIDTH}")
+    loo = print_leave_one_out(REAL, real, choose, calibrated, lambda n: f"{n}, high {highs[n]}")
 
     print("\nRidge (shipped round-C settings), same elements, same run:")
     for el in REAL:
         cloud, mask = real[el]
         print(crack_row(el, find_cracks(cloud, CrackConfig(detector="ridge"), mask), PUBLISHED[el]))
 
-    print("\nOld default (shade+crackembed, isolation forest), same elements, same run:")
-    old: dict[str, CrackResult] = {}
-    for el in REAL:
-        cloud, mask = real[el]
-        old[el] = find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-        print(crack_row(el, old[el], PUBLISHED[el]))
+    old = print_old_default(REAL, real)
 
     new_f1 = float(np.mean([loo[e].scores.f1 for e in REAL]))  # type: ignore[union-attr]
     old_f1 = float(np.mean([old[e].scores.f1 for e in REAL]))  # type: ignore[union-attr]

@@ -28,10 +28,12 @@ import numpy as np
 import pytest
 from cracks_common import (
     PUBLISHED,
-    PUBLISHED_WIDTH,
     crack_row,
     evaluated_cloud,
     f1_score,
+    old_default,
+    print_leave_one_out,
+    print_old_default,
     print_simulated_f1,
     print_speed_against_old_default,
     sim_spacing,
@@ -40,7 +42,7 @@ from cracks_common import (
 
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import CrackConfig
-from aftershock.pipeline.damage.report import CrackResult, find_cracks
+from aftershock.pipeline.damage.report import find_cracks
 from aftershock.pipeline.damage.ridge import ridge_masks, settings_of
 from aftershock.pipeline.types import LabelledCloud
 
@@ -118,39 +120,30 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
     def choose(others: tuple[str, ...]) -> str:
         return max(usable, key=lambda n: float(np.mean([f1[n][o] for o in others])))
 
+    def calibrated(name: str) -> CrackConfig:  # a candidate at its calibrated seed score
+        return _cfg(name, float(highs[name]))  # type: ignore[arg-type]
+
     print(f"\nBLIND — column4, round A (the method then, never tuned on column4): {BLIND_ROUND_A}")
     on_three = choose(SHARED)
     print(f"column4 with the candidate best on column1, column2, slab2 ({on_three}), current method, not blind:")
     cloud, mask = real[BLIND]
-    print(crack_row(BLIND, find_cracks(cloud, _cfg(on_three, float(highs[on_three])), mask), PUBLISHED[BLIND]))  # type: ignore[arg-type]
+    print(crack_row(BLIND, find_cracks(cloud, calibrated(on_three), mask), PUBLISHED[BLIND]))
 
     # column4 now joins the leave-one-out like the others
     for name in usable:
         part, truth, spacing = evaluated[BLIND]
-        cfg = _cfg(name, float(highs[name]))  # type: ignore[arg-type]
+        cfg = calibrated(name)
         f1[name][BLIND] = f1_score(ridge_masks(part, spacing, settings_of(cfg))[0], truth)
     names = (*SHARED, BLIND)
     default = choose(names)
-    cfg_default = _cfg(default, float(highs[default]))  # type: ignore[arg-type]
+    cfg_default = calibrated(default)
     shipped = CrackConfig()
     same = all(getattr(shipped, k) == getattr(cfg_default, k) for k in (*CANDIDATES[default], "ridge_high"))
     print(f"\nChosen on all four real elements (the shipped default): {default}, ridge_high {highs[default]}")
     print(f"  the config's default {'is' if same else 'is NOT'} this choice (detector {shipped.detector})")
     print("\nLeave-one-out (each element scored with the candidate best on the other three; column4 included):")
-    loo: dict[str, CrackResult] = {}
-    for el in names:
-        pick = choose(tuple(o for o in names if o != el))
-        cloud, mask = real[el]
-        loo[el] = find_cracks(cloud, _cfg(pick, float(highs[pick])), mask)  # type: ignore[arg-type]
-        print(crack_row(el, loo[el], PUBLISHED[el]) + f"  [{pick}]")
-    print(f"  published width: {PUBLISHED_WIDTH}")
-
-    print("\nOld default (shade+crackembed, isolation forest), same elements, same run:")
-    old: dict[str, CrackResult] = {}
-    for el in names:
-        cloud, mask = real[el]
-        old[el] = find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
-        print(crack_row(el, old[el], PUBLISHED[el]))
+    print_leave_one_out(names, real, choose, calibrated)
+    print_old_default(names, real)
 
     from aftershock.sources.simulator.cracks import cracked_element
 
@@ -159,7 +152,7 @@ def test_ridge_detector_protocol(real: dict[str, tuple[LabelledCloud, np.ndarray
     for kind, seed in TEST_INTACT:
         cloud, mask, _ = cracked_element(kind, seed, sim_spacing(kind), intact=True, marks=True)
         new = find_cracks(cloud, cfg_default, mask).mask.mean()
-        was = find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
+        was = old_default(cloud, mask)
         shares_new.append(new)
         shares_old.append(was.mask.mean())
         print(f"  {kind:6s} {seed}: ridge {new * 100:5.2f} %   old default {shares_old[-1] * 100:5.2f} %")

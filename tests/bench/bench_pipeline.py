@@ -56,9 +56,9 @@ _CPU_TIMERS: Final = textwrap.dedent(
     """
     import time
     import aftershock.pipeline.cluster.stage, aftershock.pipeline.label, aftershock.pipeline.register
-    import aftershock.pipeline.stream
+    import aftershock.pipeline.stream, aftershock.pipeline.structure.stage
     for _m in (aftershock.pipeline.cluster.stage, aftershock.pipeline.label, aftershock.pipeline.register,
-               aftershock.pipeline.stream):
+               aftershock.pipeline.stream, aftershock.pipeline.structure.stage):
         _m.perf_counter = time.thread_time
     """
 )

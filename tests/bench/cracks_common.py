@@ -1,9 +1,10 @@
-"""What the crack detectors' benchmarks share (bench_cracks_ridge, bench_cracks_region): the published figures
+"""What the crack benchmarks share (bench_cracks, bench_cracks_ridge, bench_cracks_region): the published figures
 beside ours, the cloud find_cracks evaluates, F1, the share of crack-free points flagged, one table row."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Final
 
 import numpy as np
@@ -14,6 +15,7 @@ from aftershock.pipeline.geometry import point_spacing, voxel_downsample
 from aftershock.pipeline.types import LabelledCloud
 
 FAR_M: Final = 0.10  # a point this far from every true crack point is crack-free
+Elements = dict[str, tuple[LabelledCloud, np.ndarray]]  # name -> (cloud, true crack mask)
 
 
 PUBLISHED: Final = {
@@ -63,6 +65,41 @@ def crack_row(label: str, r: CrackResult, published: str) -> str:
     )
 
 
+def old_default(cloud: LabelledCloud, mask: np.ndarray) -> CrackResult:
+    """The detector the new ones must beat: shade+crackembed features with the isolation forest."""
+    return find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
+
+
+def print_leave_one_out(
+    names: tuple[str, ...],
+    real: Elements,
+    choose: Callable[[tuple[str, ...]], str],
+    cfg_of: Callable[[str], CrackConfig],
+    shown: Callable[[str], str] = str,
+) -> dict[str, CrackResult]:
+    """Each element scored with the candidate `choose` picks on the others (`cfg_of` gives its settings, `shown`
+    how its row names it), a row each, then the published width error."""
+    loo: dict[str, CrackResult] = {}
+    for el in names:
+        pick = choose(tuple(o for o in names if o != el))
+        cloud, mask = real[el]
+        loo[el] = find_cracks(cloud, cfg_of(pick), mask)
+        print(crack_row(el, loo[el], PUBLISHED[el]) + f"  [{shown(pick)}]")
+    print(f"  published width: {PUBLISHED_WIDTH}")
+    return loo
+
+
+def print_old_default(names: tuple[str, ...], real: Elements) -> dict[str, CrackResult]:
+    """The old default on the same elements, a row each."""
+    print("\nOld default (shade+crackembed, isolation forest), same elements, same run:")
+    old: dict[str, CrackResult] = {}
+    for el in names:
+        cloud, mask = real[el]
+        old[el] = old_default(cloud, mask)
+        print(crack_row(el, old[el], PUBLISHED[el]))
+    return old
+
+
 def print_simulated_f1(cfg: CrackConfig, kinds: tuple[str, ...], seeds: tuple[int, ...] = (310, 311, 312)) -> None:
     """F1 on simulated cracked elements (with site marks) of seeds never used for a choice, one line per kind."""
     from aftershock.sources.simulator.cracks import cracked_element
@@ -83,7 +120,7 @@ def print_speed_against_old_default(
     find_cracks(cloud, cfg, mask)
     new_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    find_cracks(cloud, CrackConfig(), mask, detector="isolation-forest", features="shade+crackembed")
+    old_default(cloud, mask)
     old_s = time.perf_counter() - t0
     print(
         f"\nSpeed on column2 ({len(cloud)} points): {name} {new_s:.2f} s, old default {old_s:.2f} s "

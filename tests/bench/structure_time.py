@@ -18,6 +18,7 @@ from typing import Any
 from aftershock.pipeline.structure import model as M
 
 PARTS = (
+    "explain", "take", "_element_embeddings",
     "update", "apply", "_add_rows", "_update_slabs", "_join_elements", "_refit_tiles", "_fuse", "_support",
     "_fit_walls", "_merge_walls", "_join_block_walls", "_fit_columns", "_fit_beams",
 )  # fmt: skip
