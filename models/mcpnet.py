@@ -28,6 +28,7 @@ from aftershock.models.netconfig import (
     LAYOUTS,
     POINT_DIM,
     POINT_FEATURES,
+    STRUCTURE_FEATURES,
     NetConfig,
 )
 from aftershock.models.pointnet import PointNet
@@ -259,10 +260,15 @@ def point_inputs(
     mask: np.ndarray | None = None,
     wide_offsets: np.ndarray | None = None,
     wide_mask: np.ndarray | None = None,
+    structure: np.ndarray | None = None,
 ) -> np.ndarray:
     """The network's point features (K, len(cfg.features)) in the weights' layout, from the base features
-    (K, 7) of `point_features` and the offsets (K, M, >=3) and masks of the context and the wider context."""
+    (K, 7) of `point_features`, the offsets (K, M, >=3) and masks of the context and the wider context, and the
+    structure model's evidence (K, 4) in STRUCTURE_FEATURES order (pipeline.structure.features)."""
     cols = dict(zip(POINT_FEATURES, base.T, strict=True))
+    if cfg.structure:
+        assert structure is not None, "these weights read the structure model's features"
+        cols.update(zip(STRUCTURE_FEATURES, np.asarray(structure, np.float32).T, strict=True))
     if any(f in cfg.features for f in GEOMETRY_FEATURES):
         assert offsets is not None and mask is not None
         cols.update(zip(GEOMETRY_FEATURES, geometry_features(offsets[..., 0:3], mask).T, strict=True))
@@ -287,13 +293,15 @@ def point_inputs_of_rows(
     rows: np.ndarray,
     ctx_rows: np.ndarray,
     wide_rows: np.ndarray | None,
+    structure: np.ndarray | None = None,
 ) -> np.ndarray:
-    """`point_inputs` from map rows (K,) and their drawn context rows (K, M) and wider context rows (K, Mw)."""
+    """`point_inputs` from map rows (K,), their drawn context rows (K, M) and wider context rows (K, Mw), and the
+    structure model's evidence (K, 4) where the weights read it."""
     if not cfg.geometry:
-        return point_inputs(cfg, base)
+        return point_inputs(cfg, base, structure=structure)
     offsets, mask = row_offsets(positions, rows, ctx_rows)
-    wide = row_offsets(positions, rows, wide_rows) if wide_rows is not None else (None, None)
-    return point_inputs(cfg, base, offsets, mask, *wide)
+    wide, wide_mask = row_offsets(positions, rows, wide_rows) if wide_rows is not None else (None, None)
+    return point_inputs(cfg, base, offsets, mask, wide, wide_mask, structure)
 
 
 def context_features(

@@ -32,12 +32,22 @@ from aftershock.models.mcpnet import (
     row_offsets,
     save_weights,
 )
-from aftershock.models.netconfig import CONTEXT_DIM, POINT_DIM, TRANSFER_FEATURES, NetConfig
+from aftershock.models.netconfig import (
+    CONTEXT_DIM,
+    POINT_DIM,
+    STRUCTURE_TRANSFER_FEATURES,
+    TRANSFER_FEATURES,
+    NetConfig,
+)
 from aftershock.models.optimise import descend
 from aftershock.models.pointnet import PointNet
 from aftershock.models.weights_file import WEIGHTS_DIR
 from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.errors import OutputError
+from aftershock.pipeline.structure.features import FEATURES as STRUCTURE_FEATURES
+from aftershock.pipeline.structure.features import structure_features
+from aftershock.pipeline.structure.model import StructureModel
 from aftershock.pipeline.voxel_map import VoxelMap
 from aftershock.sources.simulator import Mission as SimMission
 from aftershock.sources.simulator import build_scene, get_profile
@@ -123,15 +133,22 @@ class Mission:
     stamps: np.ndarray  # (T,) scan time, seconds
     scan_rows: list[np.ndarray]  # rows hit by each scan (inside the range)
     new_rows: list[np.ndarray]  # rows each scan opened
+    structure: np.ndarray  # (S, 4) float32 the structure model's evidence of every training point when it opened
 
 
-def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
+def stage_mission(mission: SimMission, cfg: NetConfig, structure: bool | None = None) -> Mission:
     """Replay a simulated mission with its true motion through a voxel map; see the module docstring.
 
     Every point is placed with the true pose at its own firing time (an exact deskew), where inference
-    has KISS-ICP's estimate instead."""
+    has KISS-ICP's estimate instead. With `structure` (default: where `cfg` reads them) a structure model grows
+    beside the map, as the stream's `structure` stage does, and every training point gets its features from the
+    model as it stood when the point's voxel opened: as of the previous scan, which is what the labeller sees
+    (the structure stage runs after it)."""
     vmap = VoxelMap(cfg.voxel_m)
+    use = cfg.structure if structure is None else structure
+    model = StructureModel(StructureConfig(), Environment.INDOOR, cfg.voxel_m) if use else None
     rows, contexts, wides, sample_scan, origins, floors, stamps, scan_rows, new_rows = ([] for _ in range(9))
+    evidence: list[np.ndarray] = []
     for t, scan in enumerate(mission):
         assert scan.class_ids is not None and scan.instance_ids is not None and scan.times is not None
         poses = mission.trajectory.poses(mission.sweep_start_s(t) + scan.times)  # (N, 4, 4)
@@ -146,6 +163,9 @@ def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
         if cfg.coarse_points:  # drawn as the labeller draws it (MCPNetLabeller.wide_context_rows)
             draws = context_draws(vmap.keys[new], cfg.coarse_points)
             wide = vmap.context_rows(vmap.positions[new], cfg.coarse_cell_m, cfg.coarse_points, uniform=draws)
+        if model is not None:  # the model as of the previous scan, then this scan's voxels into it
+            evidence.append(structure_features(model, vmap.positions[new], float(end[2, 3])))
+            model.update(vmap, float(end[2, 3]))
         rows.append(new.astype(np.int64))
         contexts.append(ctx.astype(np.int64))
         wides.append(wide.astype(np.int64))
@@ -170,6 +190,7 @@ def stage_mission(mission: SimMission, cfg: NetConfig) -> Mission:
         stamps=np.array(stamps),
         scan_rows=scan_rows,
         new_rows=new_rows,
+        structure=np.concatenate(evidence) if evidence else np.zeros((0, len(STRUCTURE_FEATURES)), np.float32),
     )
 
 
@@ -218,8 +239,15 @@ class Pool:
         self.floor = np.concatenate([m.floors[m.sample_scan] for m in missions])
         self.mission = np.concatenate([np.full(len(m.rows), i, np.int64) for i, m in enumerate(missions)])
         self.num_missions = len(missions)
+        # staged without a structure model: none of its evidence (a network that reads it cannot train here)
+        have = all(len(m.structure) == len(m.rows) for m in missions)
+        self.structure = (
+            np.concatenate([m.structure for m in missions]).astype(np.float32)
+            if have
+            else np.zeros((len(self.rows), 0), np.float32)
+        )
         known = self.classes[self.rows] != UNLABELLED
-        for name in ("rows", "context", "wide", "origin", "floor", "mission"):
+        for name in ("rows", "context", "wide", "origin", "floor", "mission", "structure"):
             setattr(self, name, getattr(self, name)[known])
         self.sample_class = self.classes[self.rows]
         self.sample_instance = self.instances[self.rows]
@@ -279,7 +307,8 @@ class Pool:
                 drop = rng.random(len(idx)) < color_drop
             base[drop, 3:7] = 0.0
             ctx[drop, :, 3:6] = 0.0
-        pf = point_inputs(cfg, base, ctx, mask, wide, wide_mask)  # the shape features turn with the offsets
+        structure = self.structure[idx] if cfg.structure else None  # the same from any direction: not turned
+        pf = point_inputs(cfg, base, ctx, mask, wide, wide_mask, structure)  # the shape features turn with the offsets
         return pf, ctx, mask, wide, wide_mask
 
     def instance_batch(self, rng: np.random.Generator) -> np.ndarray:
@@ -594,12 +623,12 @@ def stage_all(seeds: Iterable[int], scans: int, cfg: NetConfig, log: bool = True
     return missions
 
 
-def stage_uris(uris: Iterable[str], cfg: NetConfig, log: bool = True) -> list[Mission]:
-    """Staged missions of simulator URIs."""
+def stage_uris(uris: Iterable[str], cfg: NetConfig, log: bool = True, structure: bool | None = None) -> list[Mission]:
+    """Staged missions of simulator URIs (`structure`: as `stage_mission`)."""
     missions = []
     for uri in uris:
         t0 = time.perf_counter()
-        missions.append(stage_mission(open_uri(uri), cfg))
+        missions.append(stage_mission(open_uri(uri), cfg, structure))
         if log:
             m = missions[-1]
             print(
@@ -611,14 +640,43 @@ def stage_uris(uris: Iterable[str], cfg: NetConfig, log: bool = True) -> list[Mi
 
 
 KINDS: Final[tuple[str, ...]] = ("mcpnet", "mcpnet-nocolor", "mcpnet-nocontext", "pointnet")
+# The colour-free network reads the structure model's evidence (#28): see docs/decisions.md for the round that
+# decided it.
+TRANSFER_STRUCTURE: Final = False
 
 
-def mcpnet_config() -> NetConfig:
-    """MCPNet for logs without colour (#12): height, colour (for training with and without it) and the local
-    shape at two scales, a wider context branch; x, y relative to the robot left out."""
-    return NetConfig(
-        kind="mcpnet", point_dim=len(TRANSFER_FEATURES), features=TRANSFER_FEATURES, coarse_points=COARSE_POINTS
+def train_transfer(
+    pool: Pool,
+    cfg: NetConfig,
+    epochs: int,
+    seed: int,
+    checkpoint: Callable[[MCPNet, dict], None] | None = None,
+    log: bool = True,
+) -> tuple[MCPNet, dict]:
+    """The colour-free network's recipe (TRANSFER_*) on a staged pool."""
+    return train_mcpnet(
+        pool,
+        cfg,
+        epochs,
+        seed,
+        log=log,
+        color_drop=TRANSFER_COLOR_DROP,
+        per_mission=True,
+        class_weight_power=CLASS_WEIGHT_POWER,
+        local_batches=TRANSFER_LOCAL_BATCHES,
+        crop_batches=TRANSFER_CROP_BATCHES,
+        affinity_weight=TRANSFER_AFFINITY_WEIGHT,
+        crop_class_weight=TRANSFER_CROP_CLASS_WEIGHT,
+        checkpoint=checkpoint,
     )
+
+
+def mcpnet_config(structure: bool = False) -> NetConfig:
+    """MCPNet for logs without colour (#12): height, colour (for training with and without it) and the local
+    shape at two scales, a wider context branch; x, y relative to the robot left out. With `structure` (#28) also
+    the structure model's evidence (STRUCTURE_FEATURES)."""
+    features = STRUCTURE_TRANSFER_FEATURES if structure else TRANSFER_FEATURES
+    return NetConfig(kind="mcpnet", point_dim=len(features), features=features, coarse_points=COARSE_POINTS)
 
 
 def train(
@@ -628,6 +686,7 @@ def train(
     force: bool = False,
     kinds: tuple[str, ...] = KINDS,
     generators: tuple[str, ...] = split.TRAIN_GENERATORS,
+    structure: bool | None = None,
 ) -> dict[str, Any]:
     """Stage the training missions, train the networks, write their weights.
 
@@ -635,7 +694,8 @@ def train(
     colour dropped per point. MCPNet for logs without colour (#12): randomised missions of the training
     generators (`transfer_uris`), see TRANSFER_*. `out` is the MCPNet weights file (default
     models/weights/mcpnet.pt); the others go beside it. `kinds` limits which networks are trained; `epochs`
-    overrides every network's epochs; `generators` the scene generators of the colour-free network's missions.
+    overrides every network's epochs; `generators` the scene generators of the colour-free network's missions;
+    `structure` whether it reads the structure model's evidence (default TRANSFER_STRUCTURE).
     """
     torch.set_num_threads(1)  # on a shared 2-core machine a second intra-op thread mostly waits
     out = Path(out) if out is not None else WEIGHTS_DIR / "mcpnet.pt"
@@ -695,11 +755,12 @@ def train(
         del missions, pool
     if "mcpnet-nocolor" in kinds:
         t0 = time.perf_counter()
-        cfg = mcpnet_config()
+        cfg = mcpnet_config(TRANSFER_STRUCTURE if structure is None else structure)
         uris = transfer_uris(TRAIN_SEEDS, TRANSFER_SCANS, generators)
         pool = Pool(stage_uris(uris, cfg))
         transfer_epochs = TRANSFER_EPOCHS if epochs is None else epochs
         recipe = {
+            "structure_features": cfg.structure,
             "train_seeds": list(TRAIN_SEEDS),
             "generators": list(generators),
             "held_out_generator": split.HELDOUT_GENERATOR,
@@ -718,19 +779,8 @@ def train(
             "staging_seconds": round(time.perf_counter() - t0, 1),
         }
         partial = paths["mcpnet-nocolor"].with_suffix(".partial.pt")
-        model, fig = train_mcpnet(
-            pool,
-            cfg,
-            transfer_epochs,
-            seed,
-            color_drop=TRANSFER_COLOR_DROP,
-            per_mission=True,
-            class_weight_power=CLASS_WEIGHT_POWER,
-            local_batches=TRANSFER_LOCAL_BATCHES,
-            crop_batches=TRANSFER_CROP_BATCHES,
-            affinity_weight=TRANSFER_AFFINITY_WEIGHT,
-            crop_class_weight=TRANSFER_CROP_CLASS_WEIGHT,
-            checkpoint=lambda m, f: save_weights(partial, m, cfg, {**recipe, **f}),
+        model, fig = train_transfer(
+            pool, cfg, transfer_epochs, seed, lambda m, f: save_weights(partial, m, cfg, {**recipe, **f})
         )
         keep("mcpnet-nocolor", model, cfg, recipe, fig)
         partial.unlink(missing_ok=True)

@@ -33,9 +33,13 @@ COARSE_CONTEXT_DIM: Final = len(COARSE_CONTEXT_FEATURES)
 # MCPNet since #12: height, colour, the local shape at two scales (x, y relative to the robot left out: they carry
 # the simulator's paths and room sizes rather than what a point is).
 TRANSFER_FEATURES: Final[tuple[str, ...]] = POINT_FEATURES[2:] + GEOMETRY_FEATURES + COARSE_GEOMETRY_FEATURES
+# Evidence from the live structure model of the building (#28, pipeline.structure.features computes them): height
+# above the storey's floor plane, distance to the nearest wall plane, inside a column's footprint, under a slab.
+STRUCTURE_FEATURES: Final[tuple[str, ...]] = ("height_above_floor", "wall_distance", "in_column", "under_slab")
+STRUCTURE_TRANSFER_FEATURES: Final[tuple[str, ...]] = TRANSFER_FEATURES + STRUCTURE_FEATURES
 # The layouts this version runs, per kind of network (the baselines read no context, so no shape either).
 LAYOUTS: Final[dict[str, tuple[tuple[str, ...], ...]]] = {
-    "mcpnet": (TRANSFER_FEATURES, POINT_FEATURES),
+    "mcpnet": (STRUCTURE_TRANSFER_FEATURES, TRANSFER_FEATURES, POINT_FEATURES),
     "mcpnet-nocontext": (POINT_FEATURES,),
     "pointnet": (POINT_FEATURES,),
 }
@@ -78,3 +82,8 @@ class NetConfig:
     def geometry(self) -> bool:
         """Whether the point features include the local shape from the context."""
         return any(f in self.features for f in GEOMETRY_FEATURES + COARSE_GEOMETRY_FEATURES)
+
+    @property
+    def structure(self) -> bool:
+        """Whether the point features include the structure model's evidence (the labeller needs the live model)."""
+        return any(f in self.features for f in STRUCTURE_FEATURES)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable, Iterable, Iterator
 from time import perf_counter
-from typing import Final, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Final, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError
 from aftershock.pipeline.types import Frame, Labels, MapRows
 from aftershock.pipeline.voxel_map import VoxelMap
+
+if TYPE_CHECKING:
+    from aftershock.pipeline.structure.model import StructureModel
 
 # name -> module under pipeline.labellers
 LABELLERS: Final[dict[str, str]] = {
@@ -57,6 +60,20 @@ class Labeller(Protocol):
         """After instances merged (the end of a run): their voxels may take the class the instance votes for
         (a labeller without instance votes does nothing)."""
         ...
+
+
+@runtime_checkable
+class StructureReader(Protocol):
+    """A labeller whose network may read the structure model's evidence (#28): the stream hands it the live
+    model (`pipeline.structure.StructureModel`) once, and updates it after every scan's labelling."""
+
+    def use_structure(self, model: StructureModel) -> None: ...
+
+
+def hand_structure(labeller: Labeller, model: StructureModel) -> None:
+    """Give `labeller` the stream's structure model where it can read it (labellers that cannot ignore it)."""
+    if isinstance(labeller, StructureReader):
+        labeller.use_structure(model)
 
 
 def make_labeller(name: str, cfg: Config, environment: Environment) -> Labeller:

@@ -36,6 +36,7 @@ from aftershock.pipeline.label import (
     FALLBACK_LABELLER,
     Explain,
     Labeller,
+    hand_structure,
     label_stage,
     labelling_range,
     make_labeller,
@@ -385,6 +386,7 @@ def _set_up(
     )
     if cfg.structure.enabled and cfg.label.oracle != "classes":  # the true classes leave nothing to fuse
         run.structure = StructureModel(cfg.structure, environment, run.vmap.voxel_size)
+        hand_structure(labeller, run.structure)  # weights that read its evidence see it as of the previous scan
     if labeller.name != FALLBACK_LABELLER and not isinstance(labeller, TruthStandIn):  # the baseline learnt nothing
         run.distribution = DistributionCheck(Reference.load(), notice)
     return run, (s for part in (skipped, [first], it) for s in part)

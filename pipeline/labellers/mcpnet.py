@@ -12,7 +12,7 @@ The clustering stage links neighbouring voxels whose embeddings agree: cosine si
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 import torch
@@ -29,8 +29,12 @@ from aftershock.models.mcpnet import (
 from aftershock.models.netconfig import NetConfig
 from aftershock.pipeline.config import Config, Environment
 from aftershock.pipeline.errors import InputError
+from aftershock.pipeline.structure.features import NOTHING_KNOWN, structure_features
 from aftershock.pipeline.types import Frame, LabelledCloud
 from aftershock.pipeline.voxel_map import VoxelMap
+
+if TYPE_CHECKING:
+    from aftershock.pipeline.structure.model import StructureModel
 
 NAME: Final = "mcpnet"
 NO_CONTEXT: Final = "mcpnet-nocontext"
@@ -101,6 +105,24 @@ class MCPNetLabeller:
         # vote rewrites only the rows whose voted class changed, and reports them (`label`'s return)
         self.voted = np.zeros(0, np.uint16)
         self.rng = np.random.default_rng(0)  # which older voxels are relabelled
+        # The stream's structure model (`use_structure`), for weights that read its evidence: as it stood after
+        # the previous scan (its stage runs after this one), as in training. None: nothing known of the building.
+        self.structure: StructureModel | None = None
+
+    @property
+    def reads_structure(self) -> bool:
+        """Whether either network reads the structure model's evidence (models.netconfig STRUCTURE_FEATURES)."""
+        return self.net.structure or self.mono_net.structure
+
+    def use_structure(self, model: StructureModel) -> None:
+        """Read the structure model's evidence from `model` (the stream's, updated after each scan)."""
+        self.structure = model
+
+    def structure_evidence(self, positions: np.ndarray, origin: np.ndarray) -> np.ndarray:
+        """(K, 4) float32 structure features of map positions seen from `origin` ((3,) or (K, 3))."""
+        if self.structure is None:
+            return np.tile(np.asarray(NOTHING_KNOWN, np.float32), (len(positions), 1))
+        return structure_features(self.structure, positions, float(np.median(origin[..., 2])))
 
     @property
     def config(self) -> NetConfig:
@@ -127,6 +149,7 @@ class MCPNetLabeller:
             r = rows[s : s + CHUNK]
             o = origin[s : s + CHUNK] if origin.ndim == 2 else origin
             pf = point_features(vmap.positions[r], None if colors is None else colors[r], o, floor_z)
+            evidence = self.structure_evidence(vmap.positions[r], o) if net.structure else None
             with torch.inference_mode():
                 pooled = None
                 if use_ctx:
@@ -134,7 +157,7 @@ class MCPNetLabeller:
                     ctx_rows = vmap.context_rows(vmap.positions[r], self.cell_m, self.num, uniform=draws)
                     wide_rows = self.wide_context_rows(vmap, r, net)
                     # the weights' layout says which features they read (position, colour, local shape)
-                    pf = point_inputs_of_rows(net, pf, vmap.positions, r, ctx_rows, wide_rows)
+                    pf = point_inputs_of_rows(net, pf, vmap.positions, r, ctx_rows, wide_rows, evidence)
                     owner, neighbour = distinct_pairs(ctx_rows)
                     c, _ = context_features(vmap.positions, colors, r[owner], neighbour[:, None])
                     pooled = model.pool_pairs(torch.from_numpy(c[:, 0]), torch.from_numpy(owner), len(r))

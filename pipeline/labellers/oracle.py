@@ -12,14 +12,17 @@ labeller's own outputs are computed as usual (and cost as usual), then overwritt
 
 from __future__ import annotations
 
-from typing import Final, Literal, get_args
+from typing import TYPE_CHECKING, Final, Literal, get_args
 
 import numpy as np
 
 from aftershock.pipeline.classes import UNLABELLED
-from aftershock.pipeline.label import Labeller
+from aftershock.pipeline.label import Labeller, hand_structure
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import VoxelMap
+
+if TYPE_CHECKING:
+    from aftershock.pipeline.structure.model import StructureModel
 
 Oracle = Literal["none", "classes", "objects"]
 ORACLES: Final[tuple[str, ...]] = get_args(Oracle)
@@ -53,6 +56,10 @@ class TruthStandIn:
 
     def affinity(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray) -> np.ndarray:
         return self.inner.affinity(vmap, rows_a, rows_b)
+
+    def use_structure(self, model: StructureModel) -> None:
+        """The inner labeller reads the structure model where its network does (pipeline.label.hand_structure)."""
+        hand_structure(self.inner, model)
 
     def _overwrite(self, vmap: VoxelMap, rows: np.ndarray) -> None:
         if self.what == "classes":

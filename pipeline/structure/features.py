@@ -1,7 +1,7 @@
 """Evidence from the structure model that transfers between buildings, per voxel, for a network to read
 (issue #28: height above the story's floor plane, not a height percentile; distance to the nearest wall plane;
-inside a column's footprint; under a slab). Not read by the shipped networks yet: retraining them with these
-features is the next step (`FEATURES` names the columns in order).
+inside a column's footprint; under a slab). A network whose weights name them (models.netconfig
+STRUCTURE_FEATURES) reads them; `FEATURES` names the columns in order.
 """
 
 from __future__ import annotations
@@ -10,11 +10,13 @@ from typing import Final
 
 import numpy as np
 
+from aftershock.models.netconfig import STRUCTURE_FEATURES
 from aftershock.pipeline.structure.elements import Kind
 from aftershock.pipeline.structure.model import StructureModel
 
-FEATURES: Final[tuple[str, ...]] = ("height_above_floor", "wall_distance", "in_column", "under_slab")
+FEATURES: Final[tuple[str, ...]] = STRUCTURE_FEATURES
 FAR_M: Final = 10.0  # distances are clipped here (and given where no floor or wall is known)
+NOTHING_KNOWN: Final[tuple[float, ...]] = (FAR_M, FAR_M, 0.0, 0.0)  # the features where no element is known
 
 
 def structure_features(model: StructureModel, positions: np.ndarray, sensor_z: float) -> np.ndarray:
