@@ -7,6 +7,7 @@ import numpy as np
 
 from aftershock import sources
 from aftershock.pipeline.classes import UNLABELLED
+from aftershock.pipeline.classes import SemanticClass as C
 from aftershock.pipeline.config import Environment, load_config
 from aftershock.pipeline.label import label_frame
 from aftershock.pipeline.labellers.mcpnet import MCPNetLabeller
@@ -38,8 +39,10 @@ def test_voxels_on_a_confirmed_element_skip_the_network_and_keep_class_confidenc
     # a confidence from the element's support (its voxels), as the fusion gives every voxel on an element
     assert (vmap.scores[given[on]] > 0).all()
     assert np.array_equal(vmap.scores[given[on]], model.fused_score[given[on]])
-    # each joined an object with the network-labelled voxels of its element, not one object per voxel
-    inst = vmap.instance_ids[given]
+    # each joined an object with the network-labelled voxels of its element, not one object per voxel; those the
+    # openings (found at the end of the run) made window or door left their wall and are not the skip's to judge
+    opening = np.isin(vmap.class_ids[given], [int(C.WINDOW), int(C.DOOR)])
+    inst = vmap.instance_ids[given[~opening]]
     # no more of them in no object (id 0: fragments too small, see pipeline.cluster) than of the network's voxels
     assert (inst == 0).mean() <= (vmap.instance_ids[:n][model.has_net[:n]] == 0).mean() + 0.01
     inst = inst[inst > 0]

@@ -310,7 +310,7 @@ def fit_engaged_columns(
                 ub = u_lo - _WALL_END_M + b * voxel
                 inrun = proud & (u >= ua) & (u < ub)
                 ua, ub = float(u[inrun].min()), float(u[inrun].max())  # the run's ends, not its cells'
-                seen = model.sight.origins[rows[inrun], :2] @ n + o  # the sensor's side of the plane
+                seen = model.sight.of(rows[inrun])[:, :2] @ n + o  # the sensor's side of the plane
                 known = np.isfinite(seen)
                 if known.any() and np.mean(side * seen[known] > side * s[inrun][known]) < cfg.engaged_min_face:
                     continue  # seen from behind: the far face of a thin wall, not something proud of this face

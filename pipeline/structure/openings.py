@@ -92,6 +92,13 @@ class Sightlines:
             self.origins[self.n : n_rows] = np.asarray(origin, np.float32)[:3]
             self.n = n_rows
 
+    def of(self, rows: np.ndarray) -> np.ndarray:
+        """(K, 3) where the sensor stood when each row opened (NaN where `observe` never said)."""
+        out = np.full((len(rows), 3), np.nan, np.float32)
+        known = rows < self.n
+        out[known] = self.origins[rows[known]]
+        return out
+
 
 def _lines(model: StructureModel) -> list[list[int]]:
     """Confirmed wall pieces grouped by line: parallel, coplanar, at most `opening_max_width_m` apart along it."""
