@@ -366,6 +366,20 @@ def _run_seen(vmap: VoxelMap, origin: np.ndarray) -> StructureModel:
     return model
 
 
+def _furnished_room(
+    parts: list[np.ndarray], truth_cls: int, network_cls: int
+) -> tuple[StructureModel, VoxelMap, np.ndarray, np.ndarray]:
+    """A 10 x 8 m room with `parts` (points, true class `truth_cls`) standing in it, every voxel labelled
+    `network_cls` by the network, seen from its middle: the model, the map, each point's class and its truth."""
+    pts, truth = room(x1=10.0, y1=8.0)
+    things = np.concatenate(parts)
+    pts = np.concatenate([pts, things])
+    truth = np.r_[truth, np.full(len(things), truth_cls, np.uint16)]
+    vmap, rows = _map(pts, np.full(len(pts), network_cls, np.uint16))
+    model = _run_seen(vmap, np.array([5.0, 5.0, 1.0]))
+    return model, vmap, vmap.class_ids[rows], truth
+
+
 def _box_faces(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float) -> np.ndarray:
     """The four vertical faces and the top of a box (furniture)."""
     faces = []
@@ -384,13 +398,7 @@ def _box_faces(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float)
 
 def test_a_bookcase_standing_in_a_room_is_not_a_wall_and_the_ceiling_keeps_its_edge() -> None:
     # a 2 m tall, 3 m wide bookcase 1.5 m in front of the wall at y = 0: the ceiling is seen over it on both sides
-    pts, truth = room(x1=10.0, y1=8.0)
-    case = _box_faces(5.0, 8.0, 1.5, 1.9, 0.05, 2.0)
-    pts = np.concatenate([pts, case])
-    truth = np.r_[truth, np.full(len(case), C.BOOKCASE, np.uint16)]
-    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
-    model = _run_seen(vmap, np.array([5.0, 5.0, 1.0]))
-    got = vmap.class_ids[rows]
+    model, vmap, got, truth = _furnished_room([_box_faces(5.0, 8.0, 1.5, 1.9, 0.05, 2.0)], C.BOOKCASE, C.CLUTTER)
     assert np.mean(got[truth == C.BOOKCASE] == C.WALL) < 0.05
     assert np.mean(got[truth == C.WALL] == C.WALL) > 0.9
     walls = [e for e in model.elements(vmap) if e.kind is Kind.WALL]
@@ -401,15 +409,9 @@ def test_a_bookcase_standing_in_a_room_is_not_a_wall_and_the_ceiling_keeps_its_e
 def test_desks_under_a_row_of_lamps_are_no_wall() -> None:
     # desks (0.75 m) and lamps hanging 0.4 m under the ceiling on one line: a vertical plane through both holds
     # many voxels, but the storey's middle between them is empty
-    pts, truth = room(x1=10.0, y1=8.0)
     parts = [_box_faces(x, x + 1.4, 1.6, 2.4, 0.05, 0.75) for x in (1.0, 2.6, 4.2, 5.8, 7.4)]
     parts += [_box_faces(x, x + 1.2, 1.9, 2.1, 2.5, 2.6) for x in (1.0, 2.6, 4.2, 5.8, 7.4)]
-    clutter = np.concatenate(parts)
-    pts = np.concatenate([pts, clutter])
-    truth = np.r_[truth, np.full(len(clutter), C.TABLE, np.uint16)]
-    vmap, rows = _map(pts, np.full(len(pts), C.TABLE, np.uint16))
-    model = _run_seen(vmap, np.array([5.0, 5.0, 1.0]))
-    got = vmap.class_ids[rows]
+    model, vmap, got, truth = _furnished_room(parts, C.TABLE, C.TABLE)
     assert np.mean(got[truth == C.TABLE] == C.WALL) < 0.05
     assert not any(e.kind is Kind.WALL and e.lo[1] > 1.0 and e.hi[1] < 3.0 for e in model.elements(vmap))
 
