@@ -36,6 +36,10 @@ FLUSH_POLL_S: Final = 0.5
 FLUSH_STALL_S: Final = 10.0
 _WRITE_FAILED: Final = "writing the recording failed"
 RECORDING_ID_PREFIX: Final = "aftershock-"
+# A finished .rrd ends with Rerun's footer: the magic, then its version (4 bytes). A writer whose last write found
+# the disk full says nothing, so a file without it is a cut one (rerun `crates/store/re_log_encoding`, `rrd/footer`).
+RRD_FOOTER_MAGIC: Final = b"RRF2FOOT"
+RRD_FOOTER_TAIL: Final = len(RRD_FOOTER_MAGIC) + 4
 
 
 def recording_id_for(log_id: str) -> str:
@@ -142,9 +146,12 @@ class RecordingOutput:
         self._put_in_place()
 
     def _put_in_place(self) -> None:
-        """The finished `NAME.part`, compacted when large and the disk has room, renamed over NAME."""
+        """The finished `NAME.part`, compacted when large and the disk has room, renamed over NAME; OutputError
+        when it was cut (no footer: it stays `NAME.part`)."""
         if self.path is None or self.part is None or not self.part.is_file():
             return  # never started: nothing was made
+        if not has_rrd_footer(self.part):  # the footer's write failed (the disk filled as it closed)
+            raise self._write_failed(self._why())
         size = self.part.stat().st_size
         free = self.free_bytes()
         if size > self.compact_above_mb * 1e6 and (free is None or free > size + MIN_FREE_BYTES):
@@ -234,3 +241,16 @@ class RecordingOutput:
             self.path,
             process_stuck,
         )
+
+
+def has_rrd_footer(path: Path) -> bool:
+    """Whether the .rrd file at `path` ends with Rerun's footer (it was closed complete)."""
+    try:
+        with path.open("rb") as f:
+            f.seek(0, os.SEEK_END)
+            if f.tell() < RRD_FOOTER_TAIL:
+                return False
+            f.seek(-RRD_FOOTER_TAIL, os.SEEK_END)
+            return f.read(len(RRD_FOOTER_MAGIC)) == RRD_FOOTER_MAGIC
+    except OSError:
+        return False

@@ -593,6 +593,30 @@ def test_a_recording_whose_writer_stalls_is_given_up_not_waited_for(
     sink.rec.disconnect()
 
 
+def test_a_recording_whose_footer_never_reached_the_disk_stays_part_and_says_so(tmp_path: Path) -> None:
+    """The disk fills as the recording closes: Rerun's writer drops the footer without a word. The cut file is not
+    put in place over NAME (an older recording there stays), and the error says where it was left."""
+    from aftershock.sinks import rerun_output, rerun_sink
+
+    out = tmp_path / "x.rrd"
+    out.write_bytes(b"an older recording")
+    sink = rerun_sink.RerunSink(out, False, None, load_config().rerun, force=True)
+    sink.begin(RunInfo(str(out), "mcap"))
+    part = out.with_name("x.rrd.part")
+    real_disconnect = sink.rec.disconnect
+
+    def footer_lost() -> None:
+        real_disconnect()
+        with part.open("r+b") as f:  # what a footer write into a full disk leaves: the file without its tail
+            f.truncate(part.stat().st_size - rerun_output.RRD_FOOTER_TAIL)
+
+    sink.rec.disconnect = footer_lost  # type: ignore[method-assign]
+    with pytest.raises(OutputError, match=r"recording stopped at .* left as x\.rrd\.part"):
+        sink.close()
+    assert out.read_bytes() == b"an older recording" and part.exists()
+    assert not rerun_output.has_rrd_footer(part) and rrd_print(part).returncode == 0  # read up to the cut
+
+
 def test_a_damaged_file_among_a_folders_scans_is_skipped(lidar_dir: Path, tmp_path: Path, capsys) -> None:
     folder = tmp_path / "scans"
     folder.mkdir()
