@@ -34,6 +34,7 @@ from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticCla
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
 from aftershock.pipeline.structure.columns import fit_beams, fit_columns
+from aftershock.pipeline.structure.debris import fit_debris
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
 from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
 from aftershock.pipeline.types import Frame
@@ -241,6 +242,7 @@ class StructureModel:
         self.wall_line: dict[int, np.ndarray] = {}  # wall id -> its line (normal, offset) over all its pieces, z range
         self.columns: dict[int, Element] = {}
         self.beams: dict[int, Element] = {}
+        self.debris: dict[int, Element] = {}  # masses on a floor slab (pipeline/structure/debris.py)
         self.ground_keys = KeyTable()
         self.ground_min = np.zeros(0, np.float64)
         self.next_id = 1
@@ -700,6 +702,7 @@ class StructureModel:
         for e in tile.elements:
             self.columns.pop(e, None)
             self.beams.pop(e, None)
+            self.debris.pop(e, None)
         block = self._tile_block(i)
         # forget this tile's columns and beams (they may reach into the tiles around) and wall pieces
         stale = block[np.isin(self.elem[block], np.fromiter(old, np.int64, len(old)))] if old else block[:0]
@@ -726,6 +729,8 @@ class StructureModel:
         if storey is not None:
             self._fit_columns(vmap, i, block, storey)
             self._fit_beams(vmap, i, block, storey)
+            if self.cfg.debris:  # what is left on the floor after the structure
+                fit_debris(self, vmap, i, block, storey, zs)
         return np.concatenate([stale, walls, block])
 
     def _block_pieces(self, i: int) -> list[int]:
@@ -1085,7 +1090,8 @@ class StructureModel:
             plane = np.r_[line[:2], 0.0, line[2]]
             out.append(Element(wall, Kind.WALL, pos.min(axis=0), pos.max(axis=0), plane=plane))
         out.extend(
-            Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
+            Element(e.id, e.kind, e.lo, e.hi, axis=e.axis)
+            for e in (*self.columns.values(), *self.beams.values(), *self.debris.values())
         )
         out.extend(op.element() for op in self.openings)
         if self.outdoor and np.any(self.kind_cls[: self.n] == SemanticClass.GROUND) and vmap is not None:
