@@ -8,8 +8,9 @@ voxels reach higher (95th percentile) is part of something standing (furniture, 
 Two shapes are debris:
 
 - a *layer*: everything within `debris_layer_m` of the floor over at least `debris_layer_cells` footprint
-  cells, its median `debris_layer_min_m` above the floor at least (fallen ceiling panels, roof sheets, strewn
-  rubble: no furniture lies that flat that low; the floor's own voxels off its plane lie lower);
+  cells, its median `debris_layer_min_m` above the floor around it at least (fallen ceiling panels, roof sheets,
+  strewn rubble: no furniture lies that flat that low; the floor seen off its slab's plane, where the map drifted,
+  lies level with the floor around it);
 - a *mound*: at most `debris_mound_m` high and `debris_mound_min_m` across at least (a heap, not a box), its surface made of many small faces at random angles (a share
   `debris_min_oblique` of its voxels' local normals neither vertical nor horizontal), and no large flat top
   (at most `debris_max_flat_top` of its footprint's top cells at one height: a seat, a table top, a cabinet).
@@ -39,6 +40,8 @@ _OBLIQUE: Final = (0.3, 0.9)  # |n_z| between these: a face neither upright nor 
 _FLAT_TOP_MIN_M: Final = 0.2  # a flat top is looked for above this (a seat, a table top, a shelf) ...
 _FLAT_TOP_BIN_M: Final = 0.05  # ... as the most common top height, in bins of this
 _MIN_VOXELS: Final = 15  # a component this small says nothing about its shape
+_RING_CELLS: Final = 3  # a layer's floor is measured in a ring this many cells (of one voxel) around it
+_TRIM_M: Final = 0.03  # a layer's voxels lower than this above the floor around it are the floor's
 
 
 def _floor_height(model: StructureModel, pos: np.ndarray, sensor_z: float) -> np.ndarray:
@@ -90,22 +93,38 @@ def _narrow(cells: np.ndarray, voxel: float) -> float:
     return float(np.ptp(centred @ vec[:, 0]) + 1) * voxel
 
 
+def _ring_height(cells: np.ndarray, low_cells: np.ndarray, low_h: np.ndarray) -> float:
+    """Median height of the low voxels (`low_cells`, `low_h`) in a ring `_RING_CELLS` wide around a footprint's
+    cells (0 where nothing was seen there)."""
+    lo = cells.min(axis=0) - _RING_CELLS
+    shape = cells.max(axis=0) - lo + 1 + _RING_CELLS
+    grid = np.zeros(shape, bool)
+    grid[tuple((cells - lo).T)] = True
+    ring = ndimage.binary_dilation(grid, iterations=_RING_CELLS) & ~grid
+    c = low_cells - lo
+    inside = np.all((c >= 0) & (c < shape), axis=1)
+    hit = np.zeros(len(c), bool)
+    hit[inside] = ring[c[inside, 0], c[inside, 1]]
+    return float(np.median(low_h[hit])) if hit.any() else 0.0
+
+
 def fit_debris(
     model: StructureModel, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float], sensor_z: float
 ) -> None:
     """Debris of tile `i` (components of its block's free voxels whose centre lies in the tile)."""
     cfg, voxel = model.cfg, model.voxel
-    rows = block[model.elem[block] < 0]
+    every = vmap.positions[block]
+    h_every = _floor_height(model, every, sensor_z)
+    sel = (model.elem[block] < 0) & (h_every > 0) & (h_every < storey[1] - storey[0] - cfg.plane_threshold_m)
+    rows, pos, h = block[sel], every[sel], h_every[sel]  # NaN (no floor under it) is never selected
     if len(rows) < _MIN_VOXELS:
         return
-    pos = vmap.positions[rows]
-    h = _floor_height(model, pos, sensor_z)
-    sel = (h > 0) & (h < storey[1] - storey[0] - cfg.plane_threshold_m)  # NaN (no floor under it) is False
-    rows, pos, h = rows[sel], pos[sel], h[sel]
-    if len(rows) < _MIN_VOXELS:
-        return
+    low = (h_every > -cfg.plane_threshold_m) & (h_every < cfg.debris_layer_m)
+    low_cells = np.floor(every[low, :2] / voxel).astype(np.int64)  # the floor around a layer, and what lies there
+    low_h = h_every[low]
     cell = np.floor(pos / voxel).astype(np.int64)
-    cell -= cell.min(axis=0)
+    corner = cell.min(axis=0)
+    cell -= corner
     grid = np.zeros(cell.max(axis=0) + 1, bool)
     grid[tuple(cell.T)] = True
     labels, num = ndimage.label(grid, structure=np.ones((3, 3, 3)))
@@ -127,7 +146,12 @@ def fit_debris(
         footprint = cell[mine, :2]
         cells = len(np.unique(footprint[:, 0] * (int(footprint[:, 1].max()) + 1) + footprint[:, 1]))
         layer = top <= cfg.debris_layer_m and cells >= cfg.debris_layer_cells
-        layer &= float(np.median(hh)) >= cfg.debris_layer_min_m  # not the floor itself, a little off its plane
+        if layer:  # above the floor around it: not the floor itself seen off its plane (a drifted map, a step)
+            ring = _ring_height(footprint + corner[:2], low_cells, low_h)
+            layer = float(np.median(hh)) - ring >= cfg.debris_layer_min_m
+            if layer:  # its voxels lower than that are the floor's
+                mine = mine[hh - ring >= _TRIM_M]
+                p = pos[mine]
         if not layer:
             if top > cfg.debris_mound_m or _narrow(footprint, voxel) < cfg.debris_mound_min_m:
                 continue  # too high, or too small for a heap (a box, a bag)

@@ -391,6 +391,7 @@ class StructureModel:
         self.slab_search_n = 0
         self.final = True
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
+        self._refit_debris(vmap)
         self._find_openings(vmap)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
@@ -424,6 +425,30 @@ class StructureModel:
     def observe(self, vmap: VoxelMap, origin: np.ndarray) -> None:
         """The voxels opened since the last call were seen from a sensor at `origin` (levelled map frame)."""
         self.sight.observe(len(vmap), origin)
+
+    def _refit_debris(self, vmap: VoxelMap) -> None:
+        """Debris looked for again in every tile once every tile was refitted: a tile refitted before the tiles
+        around it found their walls saw a pile against a wall as one thing with the wall, standing."""
+        if self.outdoor or not self.cfg.debris or not self.floors:
+            return
+        for i, tile in enumerate(self.tiles):  # one iteration per tile of the map
+            mine = [e for e in tile.elements if e in self.debris]
+            if mine:
+                block = self._tile_block(i)
+                stale = block[np.isin(self.elem[block], mine)]
+                self.elem[stale] = -1
+                self.kind_cls[stale] = UNLABELLED
+                for e in mine:
+                    self.debris.pop(e)
+                tile.elements = [e for e in tile.elements if e not in mine]
+            rows = tile.rows()
+            if not len(rows):
+                continue
+            centre = (self.tile_xy[i] + 0.5) * self.cfg.tile_m
+            zs = float(np.median(self.sensor_z[rows]))
+            storey = self.storey(centre, zs)
+            if storey is not None:
+                fit_debris(self, vmap, i, self._tile_block(i), storey, zs)
 
     def _find_openings(self, vmap: VoxelMap) -> None:
         """Windows and doors in the walls found (pipeline.structure.openings), their voxels taking their class."""
