@@ -110,7 +110,7 @@ def test_a_table_a_chair_and_a_cabinet_on_the_floor_are_not_debris() -> None:
         (_box_faces(7.5, 8.5, 2.5, 3.0, 0.05, 0.9), C.BOOKCASE),  # a low cabinet: flat faces at right angles
         (_box_faces(2.0, 2.4, 2.0, 2.4, 0.05, 0.3), C.CLUTTER),  # a box on the floor: too small for a heap
     ]
-    model, vmap, got, truth = _seen(things)
+    model, vmap, got, _ = _seen(things)
     assert not np.any(got == C.DEBRIS)
     assert not any(e.kind is Kind.DEBRIS for e in model.elements(vmap))
 
@@ -127,7 +127,7 @@ def test_a_pile_leaning_on_a_wall_is_debris_and_the_wall_stays_wall() -> None:
 
 
 def test_debris_off_leaves_the_networks_label() -> None:
-    _, _, got, truth = _seen([(pile(6.5, 5.5), C.DEBRIS)], debris=False)
+    _, _, got, _ = _seen([(pile(6.5, 5.5), C.DEBRIS)], debris=False)
     assert not np.any(got == C.DEBRIS)
 
 
@@ -136,3 +136,10 @@ def test_debris_goes_to_structure_json_as_its_own_kind() -> None:
     doc = structure_json([e])
     assert doc["counts"] == {"debris": 1}
     assert doc["elements"][0]["class_id"] == C.DEBRIS and doc["elements"][0]["kind"] == "debris"
+
+
+def test_every_kind_of_element_has_its_class() -> None:
+    expected = {Kind.CEILING: C.CEILING, Kind.FLOOR: C.FLOOR, Kind.DOOR: C.DOOR, Kind.DEBRIS: C.DEBRIS}
+    for kind in Kind:
+        cls = Element(1, kind, np.zeros(3), np.ones(3)).class_id
+        assert cls == expected.get(kind, cls) and 0 <= cls < 15

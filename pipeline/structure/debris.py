@@ -11,9 +11,10 @@ Two shapes are debris:
   cells, its median `debris_layer_min_m` above the floor around it at least (fallen ceiling panels, roof sheets,
   strewn rubble: no furniture lies that flat that low; the floor seen off its slab's plane, where the map drifted,
   lies level with the floor around it);
-- a *mound*: at most `debris_mound_m` high and `debris_mound_min_m` across at least (a heap, not a box), its surface made of many small faces at random angles (a share
-  `debris_min_oblique` of its voxels' local normals neither vertical nor horizontal), and no large flat top
-  (at most `debris_max_flat_top` of its footprint's top cells at one height: a seat, a table top, a cabinet).
+- a *mound*: at most `debris_mound_m` high and `debris_mound_min_m` across at least (a heap, not a box), its
+  surface made of many small faces at random angles (a share `debris_min_oblique` of its voxels' local normals
+  neither vertical nor horizontal), and no large flat top (at most `debris_max_flat_top` of its footprint's top
+  cells at one height: a seat, a table top, a cabinet).
 
 Each is one element (a box, `Kind.DEBRIS`); its voxels take debris, fused like every element's class (a
 confident non-structural class of the network stays: `structure.keep_confidence`).
@@ -21,6 +22,7 @@ confident non-structural class of the network stays: `structure.keep_confidence`
 
 from __future__ import annotations
 
+from itertools import pairwise
 from typing import TYPE_CHECKING, Final
 
 import numpy as np
@@ -57,9 +59,15 @@ def _floor_height(model: StructureModel, pos: np.ndarray, sensor_z: float) -> np
 
 def _oblique_share(pos: np.ndarray) -> np.ndarray:
     """Per point, whether its local normal (PCA of its neighbours) is neither vertical nor horizontal."""
+    nz = _normal_z(pos)
+    return (nz > _OBLIQUE[0]) & (nz < _OBLIQUE[1])
+
+
+def _normal_z(pos: np.ndarray) -> np.ndarray:
+    """Per point, |n_z| of its local normal (PCA of its neighbours among `pos`; NaN with fewer than 3)."""
     n = len(pos)
     if n < 3:
-        return np.zeros(n, bool)
+        return np.full(n, np.nan)
     k = min(_NORMAL_K, n)
     dist, idx = cKDTree(pos).query(pos, k=k)
     nb = pos[idx.reshape(n, k)]
@@ -69,8 +77,7 @@ def _oblique_share(pos: np.ndarray) -> np.ndarray:
     centred = (nb - mean[:, None, :]) * w
     cov = np.einsum("bki,bkj->bij", centred, centred) / count[:, :, None]
     _, vec = np.linalg.eigh(cov)
-    nz = np.abs(vec[:, 2, 0])
-    return (nz > _OBLIQUE[0]) & (nz < _OBLIQUE[1]) & (w.sum(axis=(1, 2)) >= 3)
+    return np.where(w.sum(axis=(1, 2)) >= 3, np.abs(vec[:, 2, 0]), np.nan)
 
 
 def _flat_top(cells: np.ndarray, height: np.ndarray) -> float:
@@ -91,6 +98,22 @@ def _narrow(cells: np.ndarray, voxel: float) -> float:
     centred = xy - xy.mean(axis=0)
     _, vec = np.linalg.eigh(centred.T @ centred + 1e-9 * np.eye(2))
     return float(np.ptp(centred @ vec[:, 0]) + 1) * voxel
+
+
+def _components(cell: np.ndarray, members: np.ndarray) -> list[np.ndarray]:
+    """`members` (indices into `cell`, voxel cells from 0) cut into 26-connected components of `_MIN_VOXELS` at
+    least."""
+    if len(members) < _MIN_VOXELS:
+        return []
+    c = cell[members]
+    c0 = c.min(axis=0)
+    grid = np.zeros(c.max(axis=0) - c0 + 1, bool)
+    grid[tuple((c - c0).T)] = True
+    labels, _ = ndimage.label(grid, structure=np.ones((3, 3, 3)))
+    comp = labels[tuple((c - c0).T)]
+    order = np.argsort(comp, kind="stable")
+    bounds = np.r_[0, np.flatnonzero(np.diff(comp[order])) + 1, len(order)]
+    return [members[order[a:b]] for a, b in pairwise(bounds) if b - a >= _MIN_VOXELS]
 
 
 def _ring_height(cells: np.ndarray, low_cells: np.ndarray, low_h: np.ndarray) -> float:
@@ -125,20 +148,11 @@ def fit_debris(
     cell = np.floor(pos / voxel).astype(np.int64)
     corner = cell.min(axis=0)
     cell -= corner
-    grid = np.zeros(cell.max(axis=0) + 1, bool)
-    grid[tuple(cell.T)] = True
-    labels, num = ndimage.label(grid, structure=np.ones((3, 3, 3)))
-    comp = labels[tuple(cell.T)]
-    order = np.argsort(comp, kind="stable")
-    bounds = np.r_[0, np.flatnonzero(np.diff(comp[order])) + 1, len(order)]
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):  # one iteration per component
-        if b - a < _MIN_VOXELS:
-            continue
-        mine = order[a:b]
+    for mine in _components(cell, np.arange(len(rows))):  # one iteration per component
         hh = h[mine]
         top = float(np.percentile(hh, 95))
         if top > cfg.debris_max_height_m:
-            continue  # part of something standing
+            continue  # part of something standing (furniture, a wall not found), or a heap against it
         p = pos[mine]
         centre = (p[:, :2].min(axis=0) + p[:, :2].max(axis=0)) / 2
         if not np.array_equal(np.floor(centre / cfg.tile_m).astype(np.int64), model.tile_xy[i]):

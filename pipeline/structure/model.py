@@ -431,16 +431,14 @@ class StructureModel:
         around it found their walls saw a pile against a wall as one thing with the wall, standing."""
         if self.outdoor or not self.cfg.debris or not self.floors:
             return
+        # all of them forgotten first: a tile's debris found before cut the parts of things around it apart
+        stale = np.flatnonzero(np.isin(self.elem[: self.n], np.fromiter(self.debris, np.int64, len(self.debris))))
+        self.elem[stale] = -1
+        self.kind_cls[stale] = UNLABELLED
+        for tile in self.tiles:  # one iteration per tile of the map
+            tile.elements = [e for e in tile.elements if e not in self.debris]
+        self.debris = {}
         for i, tile in enumerate(self.tiles):  # one iteration per tile of the map
-            mine = [e for e in tile.elements if e in self.debris]
-            if mine:
-                block = self._tile_block(i)
-                stale = block[np.isin(self.elem[block], mine)]
-                self.elem[stale] = -1
-                self.kind_cls[stale] = UNLABELLED
-                for e in mine:
-                    self.debris.pop(e)
-                tile.elements = [e for e in tile.elements if e not in mine]
             rows = tile.rows()
             if not len(rows):
                 continue
