@@ -3,6 +3,8 @@ like no furniture, is debris; furniture standing on the floor is not."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from test_structure import _box_faces, _grid, _map, room
 
@@ -143,3 +145,21 @@ def test_every_kind_of_element_has_its_class() -> None:
     for kind in Kind:
         cls = Element(1, kind, np.zeros(3), np.ones(3)).class_id
         assert cls == expected.get(kind, cls) and 0 <= cls < 15
+
+
+def test_debris_goes_to_the_recording_as_boxes_under_world_structure_debris(tmp_path: Path) -> None:
+    import rerun as rr
+    from rrd_read import read_rrd
+
+    from aftershock.sinks.structure_layer import log_structure
+
+    model, vmap, _, _ = _seen([(pile(6.5, 5.5), C.DEBRIS)])
+    rec = rr.RecordingStream("aftershock-test")
+    path = tmp_path / "structure.rrd"
+    rec.save(str(path))
+    log_structure(rec, model.elements(vmap))
+    rec.flush()
+    rec.disconnect()
+    got = read_rrd(path)
+    assert "world/structure/debris" in got.under("world/structure")
+    assert any("Boxes3D" in c for c in got.components("world/structure/debris"))
