@@ -446,6 +446,16 @@ class StructureConfig(_Section):
     opening_max_width_m: Positive = 3.5  # wall pieces this far apart along one line may bound one opening
     opening_min_seen: Fraction = 0.3  # the sensor saw through this share of an opening's width (not a shadow)
     opening_depth_m: Positive = 0.35  # an opening's voxels (frames, glass) lie at most this far behind the face
+    # debris (pipeline.structure.debris): masses on a floor slab on no element, that no furniture is shaped like
+    debris: bool = True
+    debris_max_height_m: Positive = 1.2  # a mass reaching higher (95th percentile) stands: furniture, a wall
+    debris_layer_m: Positive = 0.2  # a layer: within this of the floor ...
+    debris_layer_cells: Count = 25  # ... over at least this many footprint cells (of one voxel) ...
+    debris_layer_min_m: NonNegative = 0.05  # ... its median this far above the floor around it (not the floor)
+    debris_mound_m: Positive = 0.7  # a mound: at most this high (95th percentile) ...
+    debris_mound_min_m: NonNegative = 0.7  # ... this wide across at least (a heap, not a box or a bag) ...
+    debris_min_oblique: Fraction = 0.3  # ... with this share of its voxels' normals oblique (many small faces) ...
+    debris_max_flat_top: Fraction = 0.4  # ... and at most this share of its footprint at one top height
 
 
 class Config(_Section):

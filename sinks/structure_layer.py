@@ -1,5 +1,5 @@
 """The structure model's elements as the outputs show them: `world/structure/...` in Rerun (slabs and walls as
-outlined planes, columns and beams as boxes, in their class colours) and `structure.json` beside an export."""
+outlined planes, columns, beams and debris as boxes, in their class colours) and `structure.json` beside an export."""
 
 from __future__ import annotations
 
@@ -16,9 +16,10 @@ from aftershock.pipeline.structure.elements import Element, Kind
 
 ROOT: Final = "world/structure"
 OUTLINED: Final = (Kind.FLOOR, Kind.CEILING, Kind.WALL, Kind.GROUND)
-BOXED: Final = (Kind.COLUMN, Kind.BEAM)
+BOXED: Final = (Kind.COLUMN, Kind.BEAM, Kind.DEBRIS)
 OPENINGS: Final = (Kind.WINDOW, Kind.DOOR)  # outlined rectangles in their wall's face, in one entity
 LINE_RADIUS: Final = 0.02
+PLURAL: Final = {Kind.DEBRIS: "debris"}  # entity names: `world/structure/debris`, not `debriss`
 
 
 def structure_json(elements: Sequence[Element], notes: Sequence[str] = ()) -> dict[str, Any]:
@@ -38,7 +39,7 @@ def log_structure(rec: rr.RecordingStream, elements: Sequence[Element]) -> None:
     windows and doors together in `world/structure/openings`."""
     for kind in (*OUTLINED, *BOXED):  # one iteration per kind of element
         mine = [e for e in elements if e.kind is kind]
-        path = f"{ROOT}/{kind.value}s"
+        path = f"{ROOT}/{PLURAL.get(kind, kind.value + 's')}"
         if not mine:
             rec.log(path, rr.Clear(recursive=False))
             continue

@@ -1,9 +1,9 @@
 """The structural elements of a building as the structure model keeps them, and their JSON form.
 
-An element is one floor or ceiling slab face, one wall (its pieces in every tile merged), one column, one beam
-or the ground outdoors. Each carries an id (stable while the element lives), its kind, its extent (an
-axis-aligned box in the levelled map), a plane (slabs, walls) or an axis (columns, beams), and its support:
-the map voxels on it and the scans that saw them.
+An element is one floor or ceiling slab face, one wall (its pieces in every tile merged), one column, one beam,
+the ground outdoors, or one mass of debris on a floor. Each carries an id (stable while the element lives), its
+kind, its extent (an axis-aligned box in the levelled map), a plane (slabs, walls) or an axis (columns, beams), and
+its support: the map voxels on it and the scans that saw them.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ class Kind(StrEnum):
     GROUND = "ground"
     WINDOW = "window"  # openings: a rectangle in a wall's face
     DOOR = "door"
+    DEBRIS = "debris"  # a mass on a floor slab shaped like no furniture (not structure: see CONTENT_CLASS)
 
 
 CLASS_OF: Final[dict[Kind, SemanticClass]] = {
@@ -37,6 +38,9 @@ CLASS_OF: Final[dict[Kind, SemanticClass]] = {
     Kind.GROUND: SemanticClass.GROUND,
 }
 OPENING_CLASS: Final[dict[Kind, SemanticClass]] = {Kind.WINDOW: SemanticClass.WINDOW, Kind.DOOR: SemanticClass.DOOR}
+# what lies on the structure, found from its shape: not in CLASS_OF, so that the network's confident debris on a
+# wall or a floor stays non-structural (pipeline.structure.model NON_STRUCTURAL)
+CONTENT_CLASS: Final[dict[Kind, SemanticClass]] = {Kind.DEBRIS: SemanticClass.DEBRIS}
 
 
 @dataclass(slots=True)
@@ -52,7 +56,10 @@ class Element:
 
     @property
     def class_id(self) -> int:
-        return int(CLASS_OF[self.kind] if self.kind in CLASS_OF else OPENING_CLASS[self.kind])
+        for table in (CLASS_OF, OPENING_CLASS, CONTENT_CLASS):
+            if self.kind in table:
+                return int(table[self.kind])
+        raise KeyError(self.kind)
 
     def outline(self) -> np.ndarray:
         """(5, 3) closed outline of a slab (its extent on its plane), a wall (its face between its ends) or an

@@ -34,6 +34,7 @@ from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticCla
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
 from aftershock.pipeline.structure.columns import fit_beams, fit_columns
+from aftershock.pipeline.structure.debris import fit_debris
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
 from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
 from aftershock.pipeline.types import Frame
@@ -241,6 +242,7 @@ class StructureModel:
         self.wall_line: dict[int, np.ndarray] = {}  # wall id -> its line (normal, offset) over all its pieces, z range
         self.columns: dict[int, Element] = {}
         self.beams: dict[int, Element] = {}
+        self.debris: dict[int, Element] = {}  # masses on a floor slab (pipeline/structure/debris.py)
         self.ground_keys = KeyTable()
         self.ground_min = np.zeros(0, np.float64)
         self.next_id = 1
@@ -389,6 +391,7 @@ class StructureModel:
         self.slab_search_n = 0
         self.final = True
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
+        self._refit_debris(vmap)
         self._find_openings(vmap)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
@@ -422,6 +425,28 @@ class StructureModel:
     def observe(self, vmap: VoxelMap, origin: np.ndarray) -> None:
         """The voxels opened since the last call were seen from a sensor at `origin` (levelled map frame)."""
         self.sight.observe(len(vmap), origin)
+
+    def _refit_debris(self, vmap: VoxelMap) -> None:
+        """Debris looked for again in every tile once every tile was refitted: a tile refitted before the tiles
+        around it found their walls saw a pile against a wall as one thing with the wall, standing."""
+        if self.outdoor or not self.cfg.debris or not self.floors:
+            return
+        # all of them forgotten first: a tile's debris found before cut the parts of things around it apart
+        stale = np.flatnonzero(np.isin(self.elem[: self.n], np.fromiter(self.debris, np.int64, len(self.debris))))
+        self.elem[stale] = -1
+        self.kind_cls[stale] = UNLABELLED
+        for tile in self.tiles:  # one iteration per tile of the map
+            tile.elements = [e for e in tile.elements if e not in self.debris]
+        self.debris = {}
+        for i, tile in enumerate(self.tiles):  # one iteration per tile of the map
+            rows = tile.rows()
+            if not len(rows):
+                continue
+            centre = (self.tile_xy[i] + 0.5) * self.cfg.tile_m
+            zs = float(np.median(self.sensor_z[rows]))
+            storey = self.storey(centre, zs)
+            if storey is not None:
+                fit_debris(self, vmap, i, self._tile_block(i), storey, zs)
 
     def _find_openings(self, vmap: VoxelMap) -> None:
         """Windows and doors in the walls found (pipeline.structure.openings), their voxels taking their class."""
@@ -700,6 +725,7 @@ class StructureModel:
         for e in tile.elements:
             self.columns.pop(e, None)
             self.beams.pop(e, None)
+            self.debris.pop(e, None)
         block = self._tile_block(i)
         # forget this tile's columns and beams (they may reach into the tiles around) and wall pieces
         stale = block[np.isin(self.elem[block], np.fromiter(old, np.int64, len(old)))] if old else block[:0]
@@ -726,6 +752,8 @@ class StructureModel:
         if storey is not None:
             self._fit_columns(vmap, i, block, storey)
             self._fit_beams(vmap, i, block, storey)
+            if self.cfg.debris:  # what is left on the floor after the structure
+                fit_debris(self, vmap, i, block, storey, zs)
         return np.concatenate([stale, walls, block])
 
     def _block_pieces(self, i: int) -> list[int]:
@@ -1085,7 +1113,8 @@ class StructureModel:
             plane = np.r_[line[:2], 0.0, line[2]]
             out.append(Element(wall, Kind.WALL, pos.min(axis=0), pos.max(axis=0), plane=plane))
         out.extend(
-            Element(e.id, e.kind, e.lo, e.hi, axis=e.axis) for e in (*self.columns.values(), *self.beams.values())
+            Element(e.id, e.kind, e.lo, e.hi, axis=e.axis)
+            for e in (*self.columns.values(), *self.beams.values(), *self.debris.values())
         )
         out.extend(op.element() for op in self.openings)
         if self.outdoor and np.any(self.kind_cls[: self.n] == SemanticClass.GROUND) and vmap is not None:
