@@ -17,6 +17,8 @@ from aftershock.pipeline.types import InstanceMerge
 from aftershock.pipeline.voxel_map import VoxelMap
 
 Affinity = Callable[[VoxelMap, np.ndarray, np.ndarray], np.ndarray]
+# Per map row (the first n): the structural element whose object the voxel takes, -1 for none (see `claim`)
+Owner = Callable[[int], np.ndarray]
 
 _MAX_FINAL_ROUNDS: Final = 50
 _FLAT_CURVATURE: Final = 0.05  # λ0 / (λ0 + λ1 + λ2) of a voxel's neighbourhood at most this: a flat surface
@@ -47,6 +49,9 @@ class InstanceClusterer:
         self.next_id = 1  # 0 means "no object"
         self.stats = InstanceStats(Geometry.from_config(cfg), cfg.merge_same_class)
         self.pairs = PairTable()
+        self.owner: Owner | None = None  # set by the stream where the structure model decides objects
+        self.key_obj = np.full(0, -1, np.int64)  # element key -> the object its voxels take (-1: none yet)
+        self.owned = np.zeros(0, bool)  # per instance id: an element's object (never merges with another)
 
     @property
     def geometry(self) -> Geometry:
@@ -63,6 +68,8 @@ class InstanceClusterer:
             contact_a, contact_b, linked = self._assign(vmap, new_rows)
             self.stats.grow(vmap, new_rows, seq, self.next_id)
             touched = self._add_pairs(vmap, contact_a, contact_b, linked)
+            if self.owner is not None:
+                touched = np.union1d(touched, self.claim(vmap, seq))
             merges += self._merge_pairs(vmap, seq, touched)
         if self.absorb is not None and self.next_id > 1:
             merges += self._absorb_stale(vmap, seq)
@@ -157,6 +164,75 @@ class InstanceClusterer:
             ok &= fa == fb
         return ok
 
+    # ------------------------------------------------------------------------------------------ elements
+
+    def _reserve_owned(self) -> None:
+        self.stats.reserve(self.next_id)
+        if len(self.owned) < len(self.stats.size):
+            owned = np.zeros(len(self.stats.size), bool)
+            owned[: len(self.owned)] = self.owned
+            self.owned = owned
+
+    def is_owned(self, ids: np.ndarray) -> np.ndarray:
+        """Whether each instance id is a structural element's object."""
+        ids = np.asarray(ids, np.int64)
+        out = np.zeros(len(ids), bool)
+        inside = ids < len(self.owned)
+        out[inside] = self.owned[ids[inside]]
+        return out
+
+    def claim(self, vmap: VoxelMap, seq: int) -> np.ndarray:
+        """Voxels on a structural element (`owner`) take the element's object: geometry, not embeddings, says
+        what one slab, column or beam is. An element first seen takes over the object of an element gone since
+        (a refitted slab keeps its object id) where most of its voxels hold one, else a new id. Returns the
+        instances whose voxels changed."""
+        if self.owner is None or not len(vmap):
+            return np.zeros(0, np.int64)
+        keys = np.asarray(self.owner(len(vmap)), np.int64)
+        rows = np.flatnonzero(keys >= 0)
+        if not len(rows):
+            return np.zeros(0, np.int64)
+        k = keys[rows]
+        if len(self.key_obj) <= int(k.max()):
+            grown = np.full(max(int(k.max()) + 1, 2 * len(self.key_obj)), -1, np.int64)
+            grown[: len(self.key_obj)] = self.key_obj
+            self.key_obj = grown
+        cur = vmap.instance_ids[rows].astype(np.int64)
+        fresh = np.unique(k[self.key_obj[k] < 0])
+        if len(fresh):
+            live = np.zeros(len(self.key_obj), bool)
+            live[k] = True
+            dead = np.flatnonzero((self.key_obj >= 0) & ~live)  # elements gone (refitted, dropped)
+            for key in fresh.tolist():  # one iteration per element first seen this scan
+                mine = cur[k == key]
+                free = dead[np.isin(self.key_obj[dead], mine)]
+                if len(free):
+                    votes = np.bincount(mine, minlength=int(self.key_obj[free].max()) + 1)[self.key_obj[free]]
+                    heir = int(free[np.argmax(votes)])
+                    self.key_obj[key] = self.key_obj[heir]
+                    self.key_obj[heir] = -1
+                    dead = dead[dead != heir]
+                else:
+                    self.key_obj[key] = self.next_id
+                    self.next_id += 1
+        self._reserve_owned()
+        want = self.key_obj[k]
+        self.owned[want] = True
+        move = cur != want
+        if not move.any():
+            return np.zeros(0, np.int64)
+        moved, into = rows[move], want[move]
+        self.stats.shrink(vmap, moved)
+        vmap.instance_ids[moved] = into
+        self.stats.grow(vmap, moved, seq, self.next_id)
+        # the moved voxels touch their neighbours' instances now (not linked: a merge needs agreement)
+        nb = vmap.neighbour_rows(moved, self.reach)
+        a = np.repeat(moved, nb.shape[1])
+        b = nb.ravel().astype(np.int64)
+        keep = b >= 0
+        self._add_pairs(vmap, a[keep], b[keep], np.zeros(int(keep.sum()), bool))
+        return np.unique(np.r_[cur[move], into])
+
     # ------------------------------------------------------------------------------------------- pairs
 
     def _add_pairs(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray, linked: np.ndarray) -> np.ndarray:
@@ -203,13 +279,16 @@ class InstanceClusterer:
         graph = coo_matrix((np.ones(len(a), np.int8), (inv[0], inv[1])), shape=(len(nodes), len(nodes)))
         _, comp = connected_components(graph, directed=False)
         planar, _, _ = self.stats.planes(nodes)
-        # The largest planar member of each group (or its largest member) anchors it.
-        weight = self.stats.size[nodes] + planar * (1 << 40)
+        owned = self.is_owned(nodes)
+        # An element's object anchors its group (another element's stays out: geometry told them apart), else
+        # the largest planar member (or the largest member).
+        weight = self.stats.size[nodes] + planar * (1 << 40) + owned * (1 << 41)
         order = np.lexsort((-weight, comp))
         first = order[np.r_[True, comp[order][1:] != comp[order][:-1]]]
         anchor = np.zeros(comp.max() + 1, np.int64)
         anchor[comp[first]] = nodes[first]
         fits = self.stats.compatible(anchor[comp], nodes) | (anchor[comp] == nodes)
+        fits &= ~owned | (anchor[comp] == nodes)
         nodes, comp = nodes[fits], comp[fits]
         target = np.full(comp.max() + 1, np.iinfo(np.int64).max, np.int64)
         np.minimum.at(target, comp, nodes)
@@ -228,6 +307,13 @@ class InstanceClusterer:
         ids[:] = lut[ids]
         self.stats.merge(gone, into)
         self.pairs.rename(lut)
+        if len(self.owned):  # an element's object keeps its element under its new id
+            self._reserve_owned()
+            held = self.key_obj >= 0
+            self.key_obj[held] = lut[self.key_obj[held]]
+            was = self.is_owned(gone)
+            self.owned[gone[was]] = False
+            self.owned[into[was]] = True
         return [
             InstanceMerge(int(target), tuple(int(g) for g in gone[into == target]), seq) for target in np.unique(into)
         ]
@@ -239,7 +325,7 @@ class InstanceClusterer:
         a, b = self.pairs.pairs()
         frag = np.r_[a, b]
         other = np.r_[b, a]
-        ok = np.isin(frag, small) & (self.stats.size[other] > self.stats.size[frag])
+        ok = np.isin(frag, small) & (self.stats.size[other] > self.stats.size[frag]) & ~self.is_owned(frag)
         frag, other = frag[ok], other[ok]
         if not len(frag):
             return frag, other
