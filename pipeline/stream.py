@@ -250,7 +250,7 @@ def shown_map(vmap: VoxelMap, clusterer: InstanceClusterer) -> LabelledCloud:
     """The map as the user sees it: objects under the minimum size read as "no object"."""
     cloud = vmap.to_cloud()
     assert cloud.instance_ids is not None, "the map carries instance ids"
-    cloud.instance_ids = clusterer.shown_ids(cloud.instance_ids)
+    cloud.instance_ids = clusterer.shown_ids(cloud.instance_ids, np.arange(len(cloud.instance_ids)))
     return cloud
 
 

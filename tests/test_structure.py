@@ -438,3 +438,27 @@ def test_a_facade_seen_in_pieces_is_one_wall() -> None:
     got = vmap.class_ids[rows[len(ground) :]]
     assert np.mean(got == C.WALL) > 0.95
     assert np.mean(vmap.class_ids[rows[: len(ground)]] == C.GROUND) > 0.95
+
+
+def test_a_rooms_floor_ceiling_column_and_beam_each_give_their_voxels_one_object_and_walls_none() -> None:
+    pts, truth = room()
+    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    keys = model.object_keys(len(vmap))
+    by_kind = {e.kind: e.id for e in model.elements(vmap)}
+    for cls, kind, share in ((C.FLOOR, Kind.FLOOR, 0.95), (C.CEILING, Kind.CEILING, 0.9), (C.COLUMN, Kind.COLUMN, 0.7)):
+        mine = keys[np.unique(rows[truth == cls])]
+        assert np.mean(mine == by_kind[kind]) > share, cls.name
+    beams = {e.id for e in model.elements(vmap) if e.kind is Kind.BEAM}
+    assert np.mean(np.isin(keys[np.unique(rows[truth == C.BEAM])], list(beams))) > 0.5
+    # a wall's voxels are left to the clustering (a wall element may be a bookcase's face, or half a wall)
+    assert np.mean(keys[np.unique(rows[truth == C.WALL])] < 0) > 0.9
+
+
+def test_without_a_floor_no_voxel_takes_an_elements_object() -> None:
+    pts, _ = room()
+    turn = np.radians(30.0)
+    rot = np.array([[1, 0, 0], [0, np.cos(turn), -np.sin(turn)], [0, np.sin(turn), np.cos(turn)]])
+    vmap, _ = _map(pts @ rot.T, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    assert np.all(model.object_keys(len(vmap)) == -1)

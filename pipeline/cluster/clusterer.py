@@ -52,6 +52,8 @@ class InstanceClusterer:
         self.owner: Owner | None = None  # set by the stream where the structure model decides objects
         self.key_obj = np.full(0, -1, np.int64)  # element key -> the object its voxels take (-1: none yet)
         self.owned = np.zeros(0, bool)  # per instance id: an element's object (never merges with another)
+        self.row_obj = np.zeros(0, np.int64)  # per map row: the element object it shows (0: its own instance)
+        self.obj_size = np.zeros(0, np.int64)  # per object id: the voxels showing it as their element's
 
     @property
     def geometry(self) -> Geometry:
@@ -68,9 +70,9 @@ class InstanceClusterer:
             contact_a, contact_b, linked = self._assign(vmap, new_rows)
             self.stats.grow(vmap, new_rows, seq, self.next_id)
             touched = self._add_pairs(vmap, contact_a, contact_b, linked)
-            if self.owner is not None:
-                touched = np.union1d(touched, self.claim(vmap, seq))
             merges += self._merge_pairs(vmap, seq, touched)
+        if self.owner is not None:
+            self.show_elements(vmap)
         if self.absorb is not None and self.next_id > 1:
             merges += self._absorb_stale(vmap, seq)
         return merges
@@ -181,30 +183,32 @@ class InstanceClusterer:
         out[inside] = self.owned[ids[inside]]
         return out
 
-    def claim(self, vmap: VoxelMap, seq: int) -> np.ndarray:
-        """Voxels on a structural element (`owner`) take the element's object: geometry, not embeddings, says
-        what one slab, column or beam is. An element first seen takes over the object of an element gone since
-        (a refitted slab keeps its object id) where most of its voxels hold one, else a new id. Returns the
-        instances whose voxels changed."""
-        if self.owner is None or not len(vmap):
-            return np.zeros(0, np.int64)
-        keys = np.asarray(self.owner(len(vmap)), np.int64)
+    def show_elements(self, vmap: VoxelMap) -> None:
+        """Which element object each voxel shows (`row_obj`): voxels on a structural element (`owner`) show the
+        element's object, geometry and not embeddings saying what one slab, column or beam is. The clustering
+        underneath is left as it is (its instances, and the class votes over them, do not change) until `claim`.
+        An element first seen takes over the object of an element gone since (a refitted slab keeps its object
+        id) where most of its voxels showed it, else a new id."""
+        n = len(vmap)
+        if self.owner is None or not n:
+            return
+        keys = np.asarray(self.owner(n), np.int64)
+        if len(self.row_obj) < n:
+            self.row_obj = np.r_[self.row_obj, np.zeros(max(n, 2 * len(self.row_obj)) - len(self.row_obj), np.int64)]
         rows = np.flatnonzero(keys >= 0)
-        if not len(rows):
-            return np.zeros(0, np.int64)
         k = keys[rows]
-        if len(self.key_obj) <= int(k.max()):
+        if len(k) and len(self.key_obj) <= int(k.max()):
             grown = np.full(max(int(k.max()) + 1, 2 * len(self.key_obj)), -1, np.int64)
             grown[: len(self.key_obj)] = self.key_obj
             self.key_obj = grown
-        cur = vmap.instance_ids[rows].astype(np.int64)
         fresh = np.unique(k[self.key_obj[k] < 0])
         if len(fresh):
             live = np.zeros(len(self.key_obj), bool)
             live[k] = True
             dead = np.flatnonzero((self.key_obj >= 0) & ~live)  # elements gone (refitted, dropped)
+            before = self.row_obj[rows]
             for key in fresh.tolist():  # one iteration per element first seen this scan
-                mine = cur[k == key]
+                mine = before[k == key]
                 free = dead[np.isin(self.key_obj[dead], mine)]
                 if len(free):
                     votes = np.bincount(mine, minlength=int(self.key_obj[free].max()) + 1)[self.key_obj[free]]
@@ -215,9 +219,26 @@ class InstanceClusterer:
                 else:
                     self.key_obj[key] = self.next_id
                     self.next_id += 1
+        self.row_obj[:n] = 0
+        self.row_obj[rows] = self.key_obj[k]
+        self.obj_size = np.bincount(self.row_obj[:n], minlength=self.next_id)
+        self.obj_size[0] = 0
+
+    def claim(self, vmap: VoxelMap, seq: int) -> np.ndarray:
+        """The element objects into the map itself (at the end of a run): every voxel showing an element's object
+        (`show_elements`) moves to it, with the per-instance sums and contacts; returns the instances that
+        changed. An element's object never merges with another's afterwards."""
+        if self.owner is None or not len(vmap):
+            return np.zeros(0, np.int64)
+        self.show_elements(vmap)
+        n = len(vmap)
+        rows = np.flatnonzero(self.row_obj[:n] > 0)
+        if not len(rows):
+            return np.zeros(0, np.int64)
+        want = self.row_obj[rows]
         self._reserve_owned()
-        want = self.key_obj[k]
         self.owned[want] = True
+        cur = vmap.instance_ids[rows].astype(np.int64)
         move = cur != want
         if not move.any():
             return np.zeros(0, np.int64)
@@ -387,12 +408,27 @@ class InstanceClusterer:
                 merges += step
         return merges
 
-    def shown_ids(self, instance_ids: np.ndarray) -> np.ndarray:
-        """Instance ids as the user sees them: objects under `min_object_voxels` voxels read as 0 (no object)."""
+    def shown_ids(self, instance_ids: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """Instance ids as the user sees them: objects under `min_object_voxels` voxels read as 0 (no object);
+        with the map `rows` they belong to, voxels on an element show its object (`show_elements`)."""
         ids = np.asarray(instance_ids)
+        if rows is not None and len(self.row_obj):
+            obj = np.zeros(len(ids), np.int64)
+            inside = np.asarray(rows) < len(self.row_obj)
+            obj[inside] = self.row_obj[np.asarray(rows)[inside]]
+            size = np.zeros(len(ids), np.int64)
+            size[obj > 0] = self.obj_size[obj[obj > 0]]
+            el = obj > 0
+            ids = np.where(el, obj, ids).astype(ids.dtype)
+            hidden = self._hidden(ids) & ~el
+            return np.where(hidden | (el & (size < self.min_object_voxels)), 0, ids).astype(ids.dtype)
+        return np.where(self._hidden(ids), 0, ids).astype(ids.dtype)
+
+    def _hidden(self, ids: np.ndarray) -> np.ndarray:
+        """Whether each instance id is under `min_object_voxels` voxels (or 0)."""
         if self.min_object_voxels <= 1 or not len(self.stats.size):
-            return ids
+            return np.zeros(len(ids), bool)
         big = np.zeros(max(len(self.stats.size), int(ids.max(initial=0)) + 1), bool)
         big[: len(self.stats.size)] = self.stats.size >= self.min_object_voxels
         big[0] = False
-        return np.where(big[ids], ids, 0).astype(ids.dtype)
+        return ~big[ids]
