@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from aftershock.pipeline.classes import NETWORK_CLASSES, NUM_CLASSES, SemanticClass
+from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.structure import Kind, StructureModel
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -260,7 +261,8 @@ def test_the_evidence_features_read_the_rooms_geometry() -> None:
 
 def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> None:
     """Through the real command line: `world/structure/...` in the recording (outlines and boxes), structure.json
-    beside the export, the stage's own timing, and the map's classes where the elements lie."""
+    beside the export, the stage's own timing, the map's classes where the elements lie, and the floor's voxels
+    one object in the exported map (geometry decides a slab's object: `cluster.structure_objects`)."""
     from rrd_read import read_rrd
 
     rrd, export = tmp_path / "run.rrd", tmp_path / "out"
@@ -275,6 +277,14 @@ def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> No
     assert {"floor", "wall"} <= kinds
     floor = next(e for e in doc["elements"] if e["kind"] == "floor")
     assert floor["support"]["voxels"] > 100 and floor["support"]["scans"] >= 1 and len(floor["plane"]) == 4
+    cloud = read_cloud(export / "map.ply")
+    assert cloud.class_ids is not None and cloud.instance_ids is not None
+    plane, lo, hi = np.array(floor["plane"]), np.array(floor["extent"]["min"]), np.array(floor["extent"]["max"])
+    on = np.abs(cloud.points @ plane[:3] + plane[3]) < 0.03
+    on &= np.all((cloud.points[:, :2] >= lo[:2]) & (cloud.points[:, :2] <= hi[:2]), axis=1)
+    on &= cloud.class_ids == C.FLOOR
+    _, count = np.unique(cloud.instance_ids[on], return_counts=True)
+    assert on.sum() > 100 and count.max() > 0.95 * on.sum()  # the embeddings alone: 8 pieces, the largest 49 %
     rec = read_rrd(rrd)
     assert {"world/structure/floors", "world/structure/walls"} <= rec.under("world/structure")
     assert any("LineStrips3D:strips" in c for c in rec.components("world/structure/walls"))
