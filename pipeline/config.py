@@ -148,6 +148,9 @@ class ClusterConfig(_Section):
     # Objects shown to the user (viewer, exports, `eval`) have at least this many voxels; at the end of a
     # run smaller fragments join the touching instance whose mean embedding agrees at final_beta or more.
     min_object_voxels: Count = 50
+    # Geometry decides structural objects (issue #28): a voxel on a confirmed slab, column or beam of the
+    # structure model takes that element's object (one per element), the rest is clustered by embeddings.
+    structure_objects: bool = True
     final_beta: Annotated[float, Field(ge=-1)] = 0.7  # > 1: off
     normal_angle_deg: Angle = 20.0  # region-growing baseline: neighbouring normals within this angle
     color_distance: NonNegative = 0.12  # region-growing baseline: RGB distance in [0, 1] units

@@ -250,7 +250,7 @@ def shown_map(vmap: VoxelMap, clusterer: InstanceClusterer) -> LabelledCloud:
     """The map as the user sees it: objects under the minimum size read as "no object"."""
     cloud = vmap.to_cloud()
     assert cloud.instance_ids is not None, "the map carries instance ids"
-    cloud.instance_ids = clusterer.shown_ids(cloud.instance_ids)
+    cloud.instance_ids = clusterer.shown_ids(cloud.instance_ids, np.arange(len(cloud.instance_ids)))
     return cloud
 
 
@@ -387,6 +387,8 @@ def _set_up(
     if cfg.structure.enabled and cfg.label.oracle != "classes":  # the true classes leave nothing to fuse
         run.structure = StructureModel(cfg.structure, environment, run.vmap.voxel_size)
         hand_structure(labeller, run.structure)  # weights that read its evidence see it as of the previous scan
+        if cfg.cluster.structure_objects:  # voxels on a slab, column or beam take its object (geometry decides)
+            run.clusterer.owner = run.structure.object_keys
     if labeller.name != FALLBACK_LABELLER and not isinstance(labeller, TruthStandIn):  # the baseline learnt nothing
         run.distribution = DistributionCheck(Reference.load(), notice)
     return run, (s for part in (skipped, [first], it) for s in part)
@@ -441,6 +443,9 @@ def _finish(
         merges, changed = consolidate(vmap, run.clusterer, run.labeller, run.seqs[-1], summary)
         if run.structure is not None:  # every changed region refitted, and the fused classes over the votes
             error = _finish_structure(run, sinks, notice) or error
+            if run.clusterer.owner is not None:  # the elements as refitted at the end take their voxels
+                run.clusterer.claim(vmap, run.seqs[-1])
+                vmap.instance_ids[:] = run.clusterer.shown_ids(vmap.instance_ids)
             changed = True
         if changed:
             run.last_map_seq = None  # the map changed: the sinks get it again below

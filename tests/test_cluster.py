@@ -311,3 +311,96 @@ def test_the_stage_clusters_the_rows_the_labelling_stage_opened_and_labels_the_k
     cluster_frame(again, vm, cl)
     assert again.map_rows is not None and len(again.map_rows.new_rows) == 0 and "merges" not in again.counts
     assert again.labels is not None and (again.labels.instance_ids[:-1] == 1).all() and cl.next_id == 2
+
+
+class _Owner:
+    """A structure model's `object_keys` stand-in: the element key of each map row, as a test sets it."""
+
+    def __init__(self) -> None:
+        self.keys = np.zeros(0, np.int64)
+
+    def __call__(self, n: int) -> np.ndarray:
+        out = np.full(n, -1, np.int64)
+        out[: min(n, len(self.keys))] = self.keys[:n]
+        return out
+
+
+def _floor_voxels(x: tuple[int, int]) -> np.ndarray:
+    return np.array([[i + 0.5, j + 0.5, 0.5] for i in range(*x) for j in range(3)])
+
+
+def test_voxels_on_one_element_show_one_object_whatever_their_embeddings_say_and_the_map_takes_it() -> None:
+    vm = VoxelMap(1.0, embedding_dim=2)
+    never = lambda m, a, b: np.zeros(len(a), bool)  # noqa: E731 - the embeddings link nothing
+    cl = InstanceClusterer(_rules(), never, embedding_dim=2)
+    owner = _Owner()
+    cl.owner = owner
+    rows, _ = vm.insert(np.r_[_floor_voxels((0, 4)), [[10.5, 10.5, 0.5]]], None, 0)
+    vm.embeddings[rows] = np.where(np.arange(len(rows))[:, None] % 2, [1.0, 0.0], [0.0, 1.0])
+    owner.keys = np.r_[np.full(len(rows) - 1, 7), -1]  # every floor voxel on element 7; the far one on none
+    cl.add(vm, rows, 0)
+    clustered = vm.instance_ids[rows].copy()
+    assert len(set(clustered.tolist())) == len(rows)  # the clustering itself is left as it was ...
+    shown = cl.shown_ids(vm.instance_ids[rows], rows)
+    floor = shown[:-1]
+    assert len(set(floor.tolist())) == 1 and shown[-1] == clustered[-1] != floor[0]  # ... the floor shows one
+    # Voxels seen later on the same element show the same object.
+    more, _ = vm.insert(_floor_voxels((4, 6)), None, 1)
+    vm.embeddings[more] = [0.0, 1.0]
+    owner.keys = np.r_[owner.keys, np.full(len(more), 7)]
+    cl.add(vm, more, 1)
+    assert (cl.shown_ids(vm.instance_ids[more], more) == floor[0]).all()
+    # At the end the map itself takes the element objects, and the per-instance sums follow the moved voxels.
+    cl.claim(vm, 2)
+    assert (vm.instance_ids[np.r_[rows[:-1], more]] == floor[0]).all() and vm.instance_ids[rows[-1]] == clustered[-1]
+    assert cl.stats.size[floor[0]] == len(rows) - 1 + len(more) and cl.stats.size.sum() == len(vm)
+    assert cl.is_owned(floor[:1]).all() and not cl.is_owned(clustered[-1:]).any()
+
+
+def test_an_elements_object_keeps_its_id_when_the_element_is_refitted_under_a_new_id() -> None:
+    vm = VoxelMap(1.0, embedding_dim=2)
+    never = lambda m, a, b: np.zeros(len(a), bool)  # noqa: E731
+    cl = InstanceClusterer(_rules(), never, embedding_dim=2)
+    owner = _Owner()
+    cl.owner = owner
+    rows, _ = vm.insert(_floor_voxels((0, 4)), None, 0)
+    owner.keys = np.full(len(rows), 3)
+    cl.add(vm, rows, 0)
+    first = int(cl.shown_ids(vm.instance_ids[rows[:1]], rows[:1])[0])
+    # The slab is refitted: element 3 is gone, element 9 holds most of its voxels (and new ones).
+    more, _ = vm.insert(_floor_voxels((4, 5)), None, 1)
+    owner.keys = np.r_[np.full(len(rows) - 2, 9), -1, -1, np.full(len(more), 9)]
+    cl.add(vm, more, 1)
+    every = np.arange(len(vm))
+    assert (cl.shown_ids(vm.instance_ids[every], every)[owner.keys == 9] == first).all()
+    # A second element that appears beside it is an object of its own.
+    other, _ = vm.insert(_floor_voxels((20, 22)), None, 2)
+    owner.keys = np.r_[owner.keys, np.full(len(other), 11)]
+    cl.add(vm, other, 2)
+    shown = cl.shown_ids(vm.instance_ids[other], other)
+    assert len(set(shown.tolist())) == 1 and shown[0] != first
+    cl.claim(vm, 3)  # and the map keeps the ids the run showed
+    assert (vm.instance_ids[owner.keys == 9] == first).all() and (vm.instance_ids[other] == shown[0]).all()
+
+
+def test_two_elements_objects_never_merge_even_where_their_embeddings_agree() -> None:
+    vm = VoxelMap(1.0, embedding_dim=2)
+    never = lambda m, a, b: np.zeros(len(a), bool)  # noqa: E731
+    cl = InstanceClusterer(_rules(merge_beta=0.5), never, embedding_dim=2)
+    owner = _Owner()
+    cl.owner = owner
+    rows, _ = vm.insert(np.r_[_floor_voxels((0, 3)), _floor_voxels((3, 6))], None, 0)
+    vm.embeddings[rows] = [1.0, 0.0]
+    owner.keys = np.r_[np.full(9, 1), np.full(9, 2)]  # two columns side by side, say
+    cl.add(vm, rows, 0)
+    cl.claim(vm, 0)
+    cl.finish(vm, 0)
+    a, b = vm.instance_ids[rows[0]], vm.instance_ids[rows[-1]]
+    assert a != b and (vm.instance_ids[rows[:9]] == a).all() and (vm.instance_ids[rows[9:]] == b).all()
+    # A voxel off both elements that agrees with them still joins one of them.
+    loose, _ = vm.insert(np.array([[2.5, 3.5, 0.5]]), None, 1)
+    vm.embeddings[loose] = [1.0, 0.0]
+    owner.keys = np.r_[owner.keys, -1]
+    cl.add(vm, loose, 1)
+    cl.finish(vm, 1)
+    assert vm.instance_ids[loose[0]] in (a, b) and vm.instance_ids[rows[0]] != vm.instance_ids[rows[-1]]

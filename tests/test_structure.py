@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from aftershock.pipeline.classes import NETWORK_CLASSES, NUM_CLASSES, SemanticClass
+from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.structure import Kind, StructureModel
 from aftershock.pipeline.voxel_map import VoxelMap
@@ -260,7 +261,8 @@ def test_the_evidence_features_read_the_rooms_geometry() -> None:
 
 def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> None:
     """Through the real command line: `world/structure/...` in the recording (outlines and boxes), structure.json
-    beside the export, the stage's own timing, and the map's classes where the elements lie."""
+    beside the export, the stage's own timing, the map's classes where the elements lie, and the floor's voxels
+    one object in the exported map (geometry decides a slab's object: `cluster.structure_objects`)."""
     from rrd_read import read_rrd
 
     rrd, export = tmp_path / "run.rrd", tmp_path / "out"
@@ -275,6 +277,14 @@ def test_a_run_gives_the_structure_to_rerun_and_the_export(tmp_path: Path) -> No
     assert {"floor", "wall"} <= kinds
     floor = next(e for e in doc["elements"] if e["kind"] == "floor")
     assert floor["support"]["voxels"] > 100 and floor["support"]["scans"] >= 1 and len(floor["plane"]) == 4
+    cloud = read_cloud(export / "map.ply")
+    assert cloud.class_ids is not None and cloud.instance_ids is not None
+    plane, lo, hi = np.array(floor["plane"]), np.array(floor["extent"]["min"]), np.array(floor["extent"]["max"])
+    on = np.abs(cloud.points @ plane[:3] + plane[3]) < 0.03
+    on &= np.all((cloud.points[:, :2] >= lo[:2]) & (cloud.points[:, :2] <= hi[:2]), axis=1)
+    on &= cloud.class_ids == C.FLOOR
+    _, count = np.unique(cloud.instance_ids[on], return_counts=True)
+    assert on.sum() > 100 and count.max() > 0.95 * on.sum()  # the embeddings alone: 8 pieces, the largest 49 %
     rec = read_rrd(rrd)
     assert {"world/structure/floors", "world/structure/walls"} <= rec.under("world/structure")
     assert any("LineStrips3D:strips" in c for c in rec.components("world/structure/walls"))
@@ -438,3 +448,27 @@ def test_a_facade_seen_in_pieces_is_one_wall() -> None:
     got = vmap.class_ids[rows[len(ground) :]]
     assert np.mean(got == C.WALL) > 0.95
     assert np.mean(vmap.class_ids[rows[: len(ground)]] == C.GROUND) > 0.95
+
+
+def test_a_rooms_floor_ceiling_column_and_beam_each_give_their_voxels_one_object_and_walls_none() -> None:
+    pts, truth = room()
+    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    keys = model.object_keys(len(vmap))
+    by_kind = {e.kind: e.id for e in model.elements(vmap)}
+    for cls, kind, share in ((C.FLOOR, Kind.FLOOR, 0.95), (C.CEILING, Kind.CEILING, 0.9), (C.COLUMN, Kind.COLUMN, 0.7)):
+        mine = keys[np.unique(rows[truth == cls])]
+        assert np.mean(mine == by_kind[kind]) > share, cls.name
+    beams = {e.id for e in model.elements(vmap) if e.kind is Kind.BEAM}
+    assert np.mean(np.isin(keys[np.unique(rows[truth == C.BEAM])], list(beams))) > 0.5
+    # a wall's voxels are left to the clustering (a wall element may be a bookcase's face, or half a wall)
+    assert np.mean(keys[np.unique(rows[truth == C.WALL])] < 0) > 0.9
+
+
+def test_without_a_floor_no_voxel_takes_an_elements_object() -> None:
+    pts, _ = room()
+    turn = np.radians(30.0)
+    rot = np.array([[1, 0, 0], [0, np.cos(turn), -np.sin(turn)], [0, np.sin(turn), np.cos(turn)]])
+    vmap, _ = _map(pts @ rot.T, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run(vmap)
+    assert np.all(model.object_keys(len(vmap)) == -1)

@@ -21,6 +21,12 @@ With `absorb`, a small fragment that has stopped growing (an object still being 
 joins the neighbouring instance it agrees with most, at a lower similarity. Objects under
 `min_object_voxels` are not shown (`shown_ids`): they stay in the map, as "no object", until they grow.
 Merges are recorded on the frame as `InstanceMerge`s (and returned by `finish`), so the sinks can show them.
+
+Where the structure model runs (`cluster.structure_objects`), geometry decides structural objects (#28): a voxel
+on a confirmed slab, column or beam shows that element's object (one per element; a refitted element keeps its
+object id), over the clustering, which goes on underneath unchanged (so do the class votes over its instances);
+at the end of the run the map itself takes the element objects (`claim`), and an element's object never merges
+with another's.
 Every setting was chosen on validation missions (docs/decisions.md#clustering-before-12-objects-not-fragments).
 
 Modules: `clusterer` (InstanceClusterer: the two levels above), `stats` (per-instance sums, the plane cache and

@@ -17,6 +17,8 @@ from aftershock.pipeline.types import InstanceMerge
 from aftershock.pipeline.voxel_map import VoxelMap
 
 Affinity = Callable[[VoxelMap, np.ndarray, np.ndarray], np.ndarray]
+# Per map row (the first n): the structural element whose object the voxel takes, -1 for none (see `claim`)
+Owner = Callable[[int], np.ndarray]
 
 _MAX_FINAL_ROUNDS: Final = 50
 _FLAT_CURVATURE: Final = 0.05  # λ0 / (λ0 + λ1 + λ2) of a voxel's neighbourhood at most this: a flat surface
@@ -47,6 +49,11 @@ class InstanceClusterer:
         self.next_id = 1  # 0 means "no object"
         self.stats = InstanceStats(Geometry.from_config(cfg), cfg.merge_same_class)
         self.pairs = PairTable()
+        self.owner: Owner | None = None  # set by the stream where the structure model decides objects
+        self.key_obj = np.full(0, -1, np.int64)  # element key -> the object its voxels take (-1: none yet)
+        self.owned = np.zeros(0, bool)  # per instance id: an element's object (never merges with another)
+        self.row_obj = np.zeros(0, np.int64)  # per map row: the element object it shows (0: its own instance)
+        self.obj_size = np.zeros(0, np.int64)  # per object id: the voxels showing it as their element's
 
     @property
     def geometry(self) -> Geometry:
@@ -64,6 +71,8 @@ class InstanceClusterer:
             self.stats.grow(vmap, new_rows, seq, self.next_id)
             touched = self._add_pairs(vmap, contact_a, contact_b, linked)
             merges += self._merge_pairs(vmap, seq, touched)
+        if self.owner is not None:
+            self.show_elements(vmap)
         if self.absorb is not None and self.next_id > 1:
             merges += self._absorb_stale(vmap, seq)
         return merges
@@ -157,6 +166,94 @@ class InstanceClusterer:
             ok &= fa == fb
         return ok
 
+    # ------------------------------------------------------------------------------------------ elements
+
+    def _reserve_owned(self) -> None:
+        self.stats.reserve(self.next_id)
+        if len(self.owned) < len(self.stats.size):
+            owned = np.zeros(len(self.stats.size), bool)
+            owned[: len(self.owned)] = self.owned
+            self.owned = owned
+
+    def is_owned(self, ids: np.ndarray) -> np.ndarray:
+        """Whether each instance id is a structural element's object."""
+        ids = np.asarray(ids, np.int64)
+        out = np.zeros(len(ids), bool)
+        inside = ids < len(self.owned)
+        out[inside] = self.owned[ids[inside]]
+        return out
+
+    def show_elements(self, vmap: VoxelMap) -> None:
+        """Which element object each voxel shows (`row_obj`): voxels on a structural element (`owner`) show the
+        element's object, geometry and not embeddings saying what one slab, column or beam is. The clustering
+        underneath is left as it is (its instances, and the class votes over them, do not change) until `claim`.
+        An element first seen takes over the object of an element gone since (a refitted slab keeps its object
+        id) where most of its voxels showed it, else a new id."""
+        n = len(vmap)
+        if self.owner is None or not n:
+            return
+        keys = np.asarray(self.owner(n), np.int64)
+        if len(self.row_obj) < n:
+            self.row_obj = np.r_[self.row_obj, np.zeros(max(n, 2 * len(self.row_obj)) - len(self.row_obj), np.int64)]
+        rows = np.flatnonzero(keys >= 0)
+        k = keys[rows]
+        if len(k) and len(self.key_obj) <= int(k.max()):
+            grown = np.full(max(int(k.max()) + 1, 2 * len(self.key_obj)), -1, np.int64)
+            grown[: len(self.key_obj)] = self.key_obj
+            self.key_obj = grown
+        fresh = np.unique(k[self.key_obj[k] < 0])
+        if len(fresh):
+            live = np.zeros(len(self.key_obj), bool)
+            live[k] = True
+            dead = np.flatnonzero((self.key_obj >= 0) & ~live)  # elements gone (refitted, dropped)
+            before = self.row_obj[rows]
+            for key in fresh.tolist():  # one iteration per element first seen this scan
+                mine = before[k == key]
+                free = dead[np.isin(self.key_obj[dead], mine)]
+                if len(free):
+                    votes = np.bincount(mine, minlength=int(self.key_obj[free].max()) + 1)[self.key_obj[free]]
+                    heir = int(free[np.argmax(votes)])
+                    self.key_obj[key] = self.key_obj[heir]
+                    self.key_obj[heir] = -1
+                    dead = dead[dead != heir]
+                else:
+                    self.key_obj[key] = self.next_id
+                    self.next_id += 1
+        self.row_obj[:n] = 0
+        self.row_obj[rows] = self.key_obj[k]
+        self.obj_size = np.bincount(self.row_obj[:n], minlength=self.next_id)
+        self.obj_size[0] = 0
+
+    def claim(self, vmap: VoxelMap, seq: int) -> np.ndarray:
+        """The element objects into the map itself (at the end of a run): every voxel showing an element's object
+        (`show_elements`) moves to it, with the per-instance sums and contacts; returns the instances that
+        changed. An element's object never merges with another's afterwards."""
+        if self.owner is None or not len(vmap):
+            return np.zeros(0, np.int64)
+        self.show_elements(vmap)
+        n = len(vmap)
+        rows = np.flatnonzero(self.row_obj[:n] > 0)
+        if not len(rows):
+            return np.zeros(0, np.int64)
+        want = self.row_obj[rows]
+        self._reserve_owned()
+        self.owned[want] = True
+        cur = vmap.instance_ids[rows].astype(np.int64)
+        move = cur != want
+        if not move.any():
+            return np.zeros(0, np.int64)
+        moved, into = rows[move], want[move]
+        self.stats.shrink(vmap, moved)
+        vmap.instance_ids[moved] = into
+        self.stats.grow(vmap, moved, seq, self.next_id)
+        # the moved voxels touch their neighbours' instances now (not linked: a merge needs agreement)
+        nb = vmap.neighbour_rows(moved, self.reach)
+        a = np.repeat(moved, nb.shape[1])
+        b = nb.ravel().astype(np.int64)
+        keep = b >= 0
+        self._add_pairs(vmap, a[keep], b[keep], np.zeros(int(keep.sum()), bool))
+        return np.unique(np.r_[cur[move], into])
+
     # ------------------------------------------------------------------------------------------- pairs
 
     def _add_pairs(self, vmap: VoxelMap, rows_a: np.ndarray, rows_b: np.ndarray, linked: np.ndarray) -> np.ndarray:
@@ -203,13 +300,16 @@ class InstanceClusterer:
         graph = coo_matrix((np.ones(len(a), np.int8), (inv[0], inv[1])), shape=(len(nodes), len(nodes)))
         _, comp = connected_components(graph, directed=False)
         planar, _, _ = self.stats.planes(nodes)
-        # The largest planar member of each group (or its largest member) anchors it.
-        weight = self.stats.size[nodes] + planar * (1 << 40)
+        owned = self.is_owned(nodes)
+        # An element's object anchors its group (another element's stays out: geometry told them apart), else
+        # the largest planar member (or the largest member).
+        weight = self.stats.size[nodes] + planar * (1 << 40) + owned * (1 << 41)
         order = np.lexsort((-weight, comp))
         first = order[np.r_[True, comp[order][1:] != comp[order][:-1]]]
         anchor = np.zeros(comp.max() + 1, np.int64)
         anchor[comp[first]] = nodes[first]
         fits = self.stats.compatible(anchor[comp], nodes) | (anchor[comp] == nodes)
+        fits &= ~owned | (anchor[comp] == nodes)
         nodes, comp = nodes[fits], comp[fits]
         target = np.full(comp.max() + 1, np.iinfo(np.int64).max, np.int64)
         np.minimum.at(target, comp, nodes)
@@ -228,6 +328,13 @@ class InstanceClusterer:
         ids[:] = lut[ids]
         self.stats.merge(gone, into)
         self.pairs.rename(lut)
+        if len(self.owned):  # an element's object keeps its element under its new id
+            self._reserve_owned()
+            held = self.key_obj >= 0
+            self.key_obj[held] = lut[self.key_obj[held]]
+            was = self.is_owned(gone)
+            self.owned[gone[was]] = False
+            self.owned[into[was]] = True
         return [
             InstanceMerge(int(target), tuple(int(g) for g in gone[into == target]), seq) for target in np.unique(into)
         ]
@@ -239,7 +346,7 @@ class InstanceClusterer:
         a, b = self.pairs.pairs()
         frag = np.r_[a, b]
         other = np.r_[b, a]
-        ok = np.isin(frag, small) & (self.stats.size[other] > self.stats.size[frag])
+        ok = np.isin(frag, small) & (self.stats.size[other] > self.stats.size[frag]) & ~self.is_owned(frag)
         frag, other = frag[ok], other[ok]
         if not len(frag):
             return frag, other
@@ -301,12 +408,27 @@ class InstanceClusterer:
                 merges += step
         return merges
 
-    def shown_ids(self, instance_ids: np.ndarray) -> np.ndarray:
-        """Instance ids as the user sees them: objects under `min_object_voxels` voxels read as 0 (no object)."""
+    def shown_ids(self, instance_ids: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """Instance ids as the user sees them: objects under `min_object_voxels` voxels read as 0 (no object);
+        with the map `rows` they belong to, voxels on an element show its object (`show_elements`)."""
         ids = np.asarray(instance_ids)
+        if rows is not None and len(self.row_obj):
+            obj = np.zeros(len(ids), np.int64)
+            inside = np.asarray(rows) < len(self.row_obj)
+            obj[inside] = self.row_obj[np.asarray(rows)[inside]]
+            size = np.zeros(len(ids), np.int64)
+            size[obj > 0] = self.obj_size[obj[obj > 0]]
+            el = obj > 0
+            ids = np.where(el, obj, ids).astype(ids.dtype)
+            hidden = self._hidden(ids) & ~el
+            return np.where(hidden | (el & (size < self.min_object_voxels)), 0, ids).astype(ids.dtype)
+        return np.where(self._hidden(ids), 0, ids).astype(ids.dtype)
+
+    def _hidden(self, ids: np.ndarray) -> np.ndarray:
+        """Whether each instance id is under `min_object_voxels` voxels (or 0)."""
         if self.min_object_voxels <= 1 or not len(self.stats.size):
-            return ids
+            return np.zeros(len(ids), bool)
         big = np.zeros(max(len(self.stats.size), int(ids.max(initial=0)) + 1), bool)
         big[: len(self.stats.size)] = self.stats.size >= self.min_object_voxels
         big[0] = False
-        return np.where(big[ids], ids, 0).astype(ids.dtype)
+        return ~big[ids]

@@ -18,7 +18,7 @@ def cluster_frame(frame: Frame, vmap: VoxelMap, clusterer: InstanceClusterer) ->
         frame.merges.extend(merges)
         frame.counts["merges"] = len(merges)
     if frame.labels is not None and rows is not None and len(rows.points):
-        frame.labels.instance_ids[rows.points] = clusterer.shown_ids(vmap.instance_ids[rows.rows])
+        frame.labels.instance_ids[rows.points] = clusterer.shown_ids(vmap.instance_ids[rows.rows], rows.rows)
     frame.counts["instances_opened"] = clusterer.next_id - 1
     return frame
 

@@ -94,6 +94,30 @@ class InstanceStats:
         if self.sums.shape[1]:
             np.add.at(self.sums, ids, vmap.embeddings[new_rows])
 
+    def shrink(self, vmap: VoxelMap, rows: np.ndarray) -> None:
+        """Take rows out of their instances' sums (before they move to another instance); a row's class vote
+        is taken back where its current class still holds one (the labeller may have changed it since)."""
+        ids = vmap.instance_ids[rows].astype(np.int64)
+        keep = (ids > 0) & (ids < len(self.size))
+        rows, ids = rows[keep], ids[keep]
+        if not len(rows):
+            return
+        n = len(self.size)
+        self.size -= np.bincount(ids, minlength=n)[:n]
+        p = vmap.positions[rows]
+        for j in range(3):
+            self.psum[:, j] -= np.bincount(ids, weights=p[:, j], minlength=n)[:n]
+        for j, (c0, c1) in enumerate(_PRODUCTS):
+            self.pp[:, j] -= np.bincount(ids, weights=p[:, c0] * p[:, c1], minlength=n)[:n]
+        cls = vmap.class_ids[rows].astype(np.int64)
+        known = cls < NUM_CLASSES
+        np.subtract.at(self.votes, (ids[known], cls[known]), 1)
+        np.maximum(self.votes, 0, out=self.votes)
+        if self.sums.shape[1]:
+            np.subtract.at(self.sums, ids, vmap.embeddings[rows])
+        changed = np.unique(ids)
+        self.plane_known[changed[changed < len(self.plane_known)]] = False
+
     def merge(self, gone: np.ndarray, into: np.ndarray) -> None:
         """The sums of instances `gone` move to `into` (room reserved by the caller)."""
         for arr in (self.size, self.psum, self.pp, self.votes, self.sums):

@@ -68,6 +68,10 @@ _SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its exte
 NON_STRUCTURAL: Final = np.ones(1 << 16, bool)  # per class id: may lie on an element (table, debris, board ...)
 NON_STRUCTURAL[[c.value for c in CLASS_OF.values()]] = False
 NON_STRUCTURAL[UNLABELLED] = False
+# per class id: an element of this class is one object (a story's slab, a column, a beam: one true instance each in
+# the simulator); wall elements are not (a bookcase's face reads as a wall, a wall's faces as two walls)
+OBJECT_CLASSES: Final = np.zeros(1 << 16, bool)
+OBJECT_CLASSES[[SemanticClass.FLOOR, SemanticClass.CEILING, SemanticClass.COLUMN, SemanticClass.BEAM]] = True
 
 
 @dataclass(slots=True)
@@ -1081,6 +1085,19 @@ class StructureModel:
         return near
 
     # ------------------------------------------------------------------------------------------ results
+
+    def object_keys(self, n: int) -> np.ndarray:
+        """Per map row below `n`: the element whose object the voxel takes (a slab, column or beam whose class
+        the fusion gave it), -1 where none (no floor found, outdoors, off the elements, or the network's
+        confident label stood)."""
+        keys = np.full(n, -1, np.int64)
+        if self.outdoor or not self.has_floor:
+            return keys
+        m = min(n, self.n)
+        elem, cls = self.elem[:m], self.kind_cls[:m]
+        on = (elem > 0) & OBJECT_CLASSES[cls] & (self.fused[:m] == cls)
+        keys[:m][on] = elem[on]
+        return keys
 
     def warning(self) -> str | None:
         """One line when no floor (ground outdoors) was found: the labels are then the network's alone."""
