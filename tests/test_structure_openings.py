@@ -151,7 +151,7 @@ def test_a_window_takes_what_stands_in_its_reveal_and_the_face_around_it_stays_w
     # the window's glass lies 0.12 m behind the wall's face; the face beside its jambs, over its head and under
     # its sill is the wall's own surface (a real log's window took it, and cost the wall its edge)
     pts, truth = scene()
-    model, vmap, rows = _run(pts)
+    _, vmap, rows = _run(pts)
     got = vmap.class_ids[rows]
     face = (truth == C.WALL) & (np.abs(pts[:, 1] - 6.0) < 0.01)
     around = face & (pts[:, 0] > WINDOW[0] - 0.3) & (pts[:, 0] < WINDOW[1] + 0.3)

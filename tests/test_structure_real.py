@@ -42,7 +42,7 @@ def exports(lidar_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[s
 @pytest.mark.parametrize("log", ["room_scan1.pcd", "room_scan2.pcd"])
 def test_the_lamps_hanging_under_the_room_scans_ceilings_are_no_beams(exports: dict[str, Any], log: str) -> None:
     # rows of pendant lamps 0.2-0.3 m under the ceiling, the ceiling seen over them: they were beam boxes
-    points, classes, elements = exports[log]
+    _, classes, elements = exports[log]
     assert not [e for e in elements if e["kind"] == "beam"]
     assert np.mean(classes == C.BEAM) < 0.005
 
@@ -63,11 +63,9 @@ def test_room_scan1s_window_takes_its_reveal_and_leaves_the_walls_face_wall(expo
 
 def test_the_outdoor_facade_is_one_wall_outline(exports: dict[str, Any]) -> None:
     # the building at y = -8.8 m: recesses and balconies 0.2-0.5 m deep, each a plane (11 outlines before)
-    points, classes, elements = exports["ouster_os1_128_outdoor.mcap"]
+    _, _, elements = exports["ouster_os1_128_outdoor.mcap"]
     on_facade = [
-        e
-        for e in elements
-        if e["kind"] == "wall" and e["extent"]["min"][1] > -9.5 and e["extent"]["max"][1] < -8.0
+        e for e in elements if e["kind"] == "wall" and e["extent"]["min"][1] > -9.5 and e["extent"]["max"][1] < -8.0
     ]
     assert len(on_facade) == 1
     assert on_facade[0]["extent"]["max"][0] - on_facade[0]["extent"]["min"][0] > 9.0
