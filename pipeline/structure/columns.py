@@ -450,8 +450,8 @@ def fit_beams(model: StructureModel, vmap: VoxelMap, i: int, block: np.ndarray, 
         if not len(on):
             continue
         pos = vmap.positions[on]
-        bottom = float(pos[:, 2].min())
-        seen_over = _slab_seen_over(model, vmap, block, centre + 0.5 * voxel, axis, length, width, bottom, zc)
+        underside = float(pos[:, 2].min())
+        seen_over = _slab_seen_over(model, vmap, block, centre + 0.5 * voxel, axis, length, width, underside, zc)
         if seen_over > _SEEN_OVER_SHARE:
             continue  # rays reached the slab through where the beam would stand: it hangs free of the slab
         # a beam shows its underside: a flat bottom across most of its footprint (a wall's head does not)

@@ -962,7 +962,8 @@ class StructureModel:
         part = (off < _FACADE_RELIEF_M) & (cos > np.cos(np.radians(_FACADE_DEG))) & (gap < _WALL_JOIN_GAP_M)
         part &= length[:, None] <= length[None, :]  # i is part of the longer j
         a, b = np.nonzero(part)
-        _, group = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids))), False)
+        graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids)))
+        _, group = connected_components(graph, directed=False)
         out: dict[int, list[_Piece]] = {}
         for g in range(group.max() + 1):  # one iteration per facade
             members = np.flatnonzero(group == g)
