@@ -366,6 +366,53 @@ def test_a_walls_head_seen_without_its_lower_part_is_not_a_beam() -> None:
     assert not np.any(vmap.class_ids[rows][head] == C.BEAM)
 
 
+def _visible(pts: np.ndarray, origin: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Which points the sensor at `origin` sees past the solid boxes (lo, hi): their ray meets none on the way."""
+    f = np.linspace(0.0, 1.0, 200, endpoint=False)[None, :, None]
+    ray = origin + f * (pts[:, None, :] - origin)
+    hidden = np.zeros(len(pts), bool)
+    for lo, hi in boxes:
+        hidden |= np.all((ray > lo + 1e-3) & (ray < hi - 1e-3), axis=2).any(axis=1)
+    return ~hidden
+
+
+def _bar(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float) -> np.ndarray:
+    """A bar's underside and its four sides (a beam, or a lamp's housing)."""
+    x, y = _grid(x0, x1, y0, y1)
+    return np.concatenate([np.c_[x, y, np.full_like(x, z0)], _box_faces(x0, x1, y0, y1, z0, z1)[: -len(x)]])
+
+
+@pytest.mark.parametrize("gap", [0.0, 0.2])
+def test_a_beam_is_built_up_to_the_slab_and_lamps_hanging_under_it_are_not_beams(gap: float) -> None:
+    # a row of 1.6 m long housings 0.25 m deep under a 3 m ceiling, seen from a sensor at 1 m: with a gap of
+    # 0.2 m over them the sensor sees the ceiling through it (pendant lamps), without one it cannot (a beam)
+    sensor = np.array([5.0, 5.0, 1.0])
+    pts, truth = room(x1=10.0, y1=8.0)
+    keep = truth != C.BEAM
+    pts, truth = pts[keep], truth[keep]
+    z1 = 3.0 - gap
+    boxes = [(np.array([x, 1.9, z1 - 0.25]), np.array([x + 1.6, 2.15, z1])) for x in (1.0, 4.0, 7.0)]
+    bars = [_bar(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]) for lo, hi in boxes]
+    if gap == 0.0:
+        # a beam along the room on one line under the slab (the housings are its stretches between columns)
+        bars = [_bar(0.5, 9.5, 1.9, 2.15, 2.75, 3.0)]
+        boxes = [(np.array([0.5, 1.9, 2.75]), np.array([9.5, 2.15, 3.0]))]
+    things = np.concatenate(bars)
+    pts = np.concatenate([pts, things])
+    truth = np.r_[truth, np.full(len(things), C.BEAM if gap == 0.0 else C.CLUTTER, np.uint16)]
+    seen = _visible(pts, sensor, boxes)  # what the sensor sees: no slab over a beam, no far face of a bar
+    pts, truth = pts[seen], truth[seen]
+    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = _run_seen(vmap, sensor)
+    beams = [e for e in model.elements(vmap) if e.kind is Kind.BEAM]
+    near = [e for e in beams if e.lo[1] > 1.5 and e.hi[1] < 2.6]
+    if gap == 0.0:
+        assert near and max(float(e.hi[0] - e.lo[0]) for e in near) > 4.0
+    else:
+        assert not near, [(e.lo, e.hi) for e in near]
+        assert np.mean(vmap.class_ids[rows][truth == C.CLUTTER] == C.BEAM) < 0.05
+
+
 def _run_seen(vmap: VoxelMap, origin: np.ndarray) -> StructureModel:
     """`_run` with the sensor's position known (the stream tells the model where each scan was taken)."""
     model = StructureModel(StructureConfig(), Environment.INDOOR, vmap.voxel_size)
@@ -472,3 +519,30 @@ def test_without_a_floor_no_voxel_takes_an_elements_object() -> None:
     vmap, _ = _map(pts @ rot.T, np.full(len(pts), C.CLUTTER, np.uint16))
     model = _run(vmap)
     assert np.all(model.object_keys(len(vmap)) == -1)
+
+
+def test_a_facade_with_recesses_and_balconies_is_one_wall_outline() -> None:
+    # outdoors: a 14 m facade at y = 8 with a shop front recessed 0.35 m (x -3..3, under 2.8 m) and a balcony
+    # parapet 0.4 m proud of it upstairs (x -6..0): each relief face is its own plane, the facade one outline
+    rng = np.random.default_rng(2)
+    x, y = _grid(-10, 10, -4, 10)
+    ground = np.c_[x, y, rng.normal(0, 0.005, len(x))]
+    u, z = _grid(-7, 7, 0.05, 7.0)
+    shop = (np.abs(u) < 3.0) & (z < 2.8)
+    main = np.c_[u, np.full_like(u, 8.0), z][~shop]
+    front = np.c_[u, np.full_like(u, 8.35), z][shop]
+    su, sz = _grid(-3.0, 3.0, 2.8, 2.85)  # the recess's soffit edge
+    parapet_u, parapet_z = _grid(-6.0, 0.0, 3.2, 4.3)
+    parapet = np.c_[parapet_u, np.full_like(parapet_u, 7.6), parapet_z]
+    facade = np.concatenate([main, front, np.c_[su, np.full_like(su, 8.2), sz], parapet])
+    facade[:, 1] += rng.normal(0, 0.02, len(facade))
+    pts = np.concatenate([ground, facade])
+    vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
+    model = StructureModel(StructureConfig(), Environment.OUTDOOR, 0.1)
+    model.update(vmap, sensor_z=1.8)
+    model.finish(vmap)
+    model.apply(vmap)
+    assert len(model.wall_line) >= 2, "the relief faces are walls of their own (their voxels on their planes)"
+    walls = [e for e in model.elements(vmap) if e.kind is Kind.WALL]
+    assert len(walls) == 1, [(e.lo.round(2), e.hi.round(2)) for e in walls]
+    assert walls[0].hi[0] - walls[0].lo[0] > 13.0 and walls[0].voxels > 0.9 * len(np.unique(rows[len(ground) :]))

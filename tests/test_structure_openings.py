@@ -145,3 +145,17 @@ def test_the_openings_go_to_the_recording_as_outlines_in_their_walls(tmp_path: P
     got = read_rrd(path)
     assert "world/structure/openings" in got.under("world/structure")
     assert any("LineStrips3D:strips" in c for c in got.components("world/structure/openings"))
+
+
+def test_a_window_takes_what_stands_in_its_reveal_and_the_face_around_it_stays_wall() -> None:
+    # the window's glass lies 0.12 m behind the wall's face; the face beside its jambs, over its head and under
+    # its sill is the wall's own surface (a real log's window took it, and cost the wall its edge)
+    pts, truth = scene()
+    _, vmap, rows = _run(pts)
+    got = vmap.class_ids[rows]
+    face = (truth == C.WALL) & (np.abs(pts[:, 1] - 6.0) < 0.01)
+    around = face & (pts[:, 0] > WINDOW[0] - 0.3) & (pts[:, 0] < WINDOW[1] + 0.3)
+    around &= (pts[:, 2] > WINDOW[2] - 0.3) & (pts[:, 2] < WINDOW[3] + 0.3)
+    assert around.sum() > 100
+    assert np.all(got[around] == C.WALL), int(np.sum(got[around] == C.WINDOW))
+    assert np.mean(got[truth == C.WINDOW] == C.WINDOW) > 0.9

@@ -7,8 +7,9 @@
   (the far face of a thin wall is behind the near one), over most of the story's height, with a flat face
   parallel to the wall, open in front of it, and the wall one clean plane on both sides (a wall seen twice by a
   drifting registration is not).
-- Beams: elongated footprints hanging just under a ceiling slab, open below, with a flat underside, and not
-  along a wall's plane (a wall's head seen without its lower part is not a beam).
+- Beams: elongated footprints hanging just under a ceiling slab, open below, with a flat underside, not
+  along a wall's plane (a wall's head seen without its lower part is not a beam), and built up to the slab:
+  where the sensor saw the slab through the space over a candidate, it hangs free (a row of pendant lamps).
 
 Every voxel inside a column's box takes column (also those a wall piece took: the wall's plane runs behind an
 engaged column, what is seen there is the column).
@@ -45,6 +46,9 @@ _PANEL_LONG_M: Final = 0.8  # ... longer than this, or shorter but ...
 _SQUARE_COS: Final = 0.35  # ... and square off a wall (the cosine of its axis with the wall's, at most) ...
 _TOUCH_M: Final = 0.25  # ... touching the wall's line within this (a door leaf's hinge)
 _MAX_ON_WALLS: Final = 0.7  # a footprint with this share of its cells on wall lines is the walls' (a corner)
+_SEEN_OVER_SHARE: Final = 0.3  # the slab seen through the space over a beam along this share of its length: a
+# fixture hanging under the ceiling (a pendant lamp, a duct on hangers), not a beam built up to the slab
+_OVER_SAMPLES: Final = 8  # heights along a ray at which it is looked at in that space
 _OPEN_M: Final = 0.4  # the space this deep in front of an engaged column's face is open ...
 _MAX_AHEAD: Final = 0.2  # ... holding at most this share of the column's voxels
 
@@ -360,6 +364,46 @@ def along_wall(model: StructureModel, i: int, xy: np.ndarray, reach_m: float) ->
     return float(best.mean()) if len(xy) else 0.0
 
 
+def _slab_seen_over(
+    model: StructureModel,
+    vmap: VoxelMap,
+    block: np.ndarray,
+    centre: np.ndarray,
+    axis: np.ndarray,
+    length: float,
+    width: float,
+    bottom: float,
+    zc: float,
+) -> float:
+    """Share of a beam candidate's length (its footprint: `centre`, `axis`, `length`, `width`; from `bottom` up
+    to the ceiling at `zc`) over which the sensor saw the ceiling through the space the beam would fill: rays to
+    ceiling voxels that pass over its middle, under the slab. A beam is built up to the slab (the slab over it
+    is hidden); a fixture hanging from it leaves a gap the rays see through. 0 where no ray is known."""
+    cfg, voxel = model.cfg, model.voxel
+    rows = block[model.kind_cls[block] == SemanticClass.CEILING]
+    if not len(rows):
+        return 0.0
+    pos = vmap.positions[rows].astype(np.float64)
+    t = np.array([-axis[1], axis[0]])
+    rel = pos[:, :2] - centre
+    near = (np.abs(rel @ axis) < length / 2 + 1.0) & (np.abs(rel @ t) < width / 2 + 1.0)
+    rows, pos = rows[near], pos[near]
+    origin = model.sight.of(rows).astype(np.float64)
+    known = np.isfinite(origin).all(axis=1) & (origin[:, 2] < bottom)
+    pos, origin = pos[known], origin[known]
+    if not len(pos):
+        return 0.0
+    # the ray at heights between the candidate's underside and just under the slab
+    h = np.linspace(bottom + cfg.plane_threshold_m, zc - 2 * cfg.plane_threshold_m, _OVER_SAMPLES)
+    f = (h[None, :] - origin[:, 2:3]) / (pos[:, 2:3] - origin[:, 2:3])
+    xy = origin[:, None, :2] + f[..., None] * (pos[:, None, :2] - origin[:, None, :2])
+    along, across = (xy - centre) @ axis, (xy - centre) @ t
+    inner = max(width / 2 - voxel, voxel / 2)  # its middle, clear of the voxels at its faces
+    through = (np.abs(across) < inner) & (np.abs(along) < length / 2) & (f > 0) & (f < 1)
+    bins = np.unique(np.floor((along[through] + length / 2) / voxel).astype(np.int64))
+    return min(len(bins) / max(length / voxel, 1.0), 1.0)
+
+
 def fit_beams(model: StructureModel, vmap: VoxelMap, i: int, block: np.ndarray, storey: tuple[float, float]) -> None:
     cfg, voxel = model.cfg, model.voxel
     zf, zc = storey
@@ -406,6 +450,10 @@ def fit_beams(model: StructureModel, vmap: VoxelMap, i: int, block: np.ndarray, 
         if not len(on):
             continue
         pos = vmap.positions[on]
+        underside = float(pos[:, 2].min())
+        seen_over = _slab_seen_over(model, vmap, block, centre + 0.5 * voxel, axis, length, width, underside, zc)
+        if seen_over > _SEEN_OVER_SHARE:
+            continue  # rays reached the slab through where the beam would stand: it hangs free of the slab
         # a beam shows its underside: a flat bottom across most of its footprint (a wall's head does not)
         bottom = pos[:, 2] < pos[:, 2].min() + 2 * cfg.plane_threshold_m
         under_cells = len(np.unique(cell[members][bottom], axis=0))

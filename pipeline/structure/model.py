@@ -62,6 +62,8 @@ _WALL_Z_GAP_M: Final = (
 )
 _WALL_HEAD_M: Final = 0.5  # a face stopping this far under the ceiling with the ceiling seen ...
 _CEILING_SIDE_M: Final = 1.0  # ... within this on both sides of it stands in the room
+_FACADE_RELIEF_M: Final = 0.5  # outdoors a facade's recesses, balconies and pilasters stand this far off its plane
+_FACADE_DEG: Final = 30.0  # ... and a slanted line RANSAC drew through that relief turns this far from it at most
 _SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
 _MIN_SLAB_SHARE: Final = 0.1  # a slab holds at least this share of the largest slab's voxels (not a table top)
 _SLAB_XY_MARGIN_M: Final = 1.0  # new voxels join a slab within this of its extent (it grows as it is seen)
@@ -965,6 +967,42 @@ class StructureModel:
                 spans[ps[k].id] = span
         return out
 
+    def _facades(self, walls: dict[int, list[_Piece]]) -> dict[int, list[_Piece]]:
+        """Outdoors, walls joined into the facade they belong to (for their outline): a wall whose ends lie
+        within `_FACADE_RELIEF_M` of a longer wall's line, turned at most `_FACADE_DEG` from it, and overlapping
+        or continuing it along that line, is a recess, a balcony or a pilaster of it (a facade is one plane with
+        relief, each relief face its own wall). The labels are not changed; the longest wall gives the id."""
+        ids = list(walls)
+        if len(ids) < 2:
+            return walls
+        lines = []
+        for w in ids:  # one iteration per wall
+            line = self.wall_line.get(w)
+            if line is None:
+                big = max(walls[w], key=lambda p: len(p.rows))
+                line = np.r_[big.normal, big.offset, big.z, big.u]
+            lines.append(line)
+        ln = np.array(lines)
+        normal, offset, u = ln[:, :2], ln[:, 2], ln[:, 5:7]
+        direction = np.c_[-normal[:, 1], normal[:, 0]]
+        ends = direction[:, None, :] * u[:, :, None] - (normal * offset[:, None])[:, None, :]  # (W, 2 ends, 2)
+        off = np.abs(np.einsum("ikc,jc->ijk", ends, normal) + offset[None, :, None]).max(axis=2)  # i's ends off j
+        proj = np.einsum("ikc,jc->ijk", ends, direction)  # i's ends along j's line
+        gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
+        length = u[:, 1] - u[:, 0]
+        cos = np.abs(normal @ normal.T)
+        part = (off < _FACADE_RELIEF_M) & (cos > np.cos(np.radians(_FACADE_DEG))) & (gap < _WALL_JOIN_GAP_M)
+        part &= length[:, None] <= length[None, :]  # i is part of the longer j
+        a, b = np.nonzero(part)
+        graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(ids), len(ids)))
+        _, group = connected_components(graph, directed=False)
+        out: dict[int, list[_Piece]] = {}
+        for g in range(group.max() + 1):  # one iteration per facade
+            members = np.flatnonzero(group == g)
+            lead = ids[int(members[np.argmax(length[members])])]
+            out[lead] = [p for k in members for p in walls[ids[int(k)]]]
+        return out
+
     # ------------------------------------------------------------------------------------------ ground
 
     def _ground_keys(self, pos: np.ndarray) -> np.ndarray:
@@ -1118,6 +1156,8 @@ class StructureModel:
         walls: dict[int, list[_Piece]] = {}
         for pid, wall in self.wall_of_piece.items():
             walls.setdefault(wall, []).append(self.pieces[pid])
+        if self.outdoor:
+            walls = self._facades(walls)
         for wall, ps in walls.items():
             rows = np.concatenate([p.rows for p in ps])
             pos = vmap.positions[rows] if vmap is not None else None
@@ -1138,8 +1178,8 @@ class StructureModel:
             g = vmap.positions[: self.n][self.kind_cls[: self.n] == SemanticClass.GROUND]
             out.append(Element(0, Kind.GROUND, g.min(axis=0), g.max(axis=0)))
         piece_wall = np.full(self.next_id + 1, -1, np.int64)
-        for pid, wall in self.wall_of_piece.items():
-            piece_wall[pid] = wall
+        for wall, ps in walls.items():
+            piece_wall[[p.id for p in ps]] = wall
         owner = np.where(elem >= 0, elem, -1)
         wall_ids = piece_wall[np.clip(owner, 0, None)]
         owner = np.where(wall_ids >= 0, wall_ids, owner)

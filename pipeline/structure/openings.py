@@ -339,6 +339,10 @@ def _opening(
     box = (hh > z0 - margin) & (hh < z1 + margin)
     reach = _JAMB_M if kind is Kind.DOOR else margin
     mine = box & (uu > ua - reach) & (uu < ub + reach) & (d > -cfg.opening_depth_m) & (d < _FRONT_M)
+    if kind is Kind.WINDOW:
+        # a window's frame and glass are set in the wall's reveal: the face around the hole (its jambs, head,
+        # the sill's edge) is the wall's own surface
+        mine &= np.abs(d) > cfg.plane_threshold_m
     if kind is Kind.DOOR:
         mine |= _leaf(model, pos, np.flatnonzero(box & (np.abs(d) > _FRONT_M)), uu, d, hh, (ua, ub))
     out = np.flatnonzero(mine)
