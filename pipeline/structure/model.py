@@ -80,6 +80,10 @@ class _Slab:
     hi: np.ndarray
     fitted_count: int  # voxels in its band when last fitted
     voxels: int = 0  # on its plane when fitted
+    mid_z: float = field(init=False)  # the middle of its extent in height (its height for the story rules)
+
+    def __post_init__(self) -> None:
+        self.mid_z = float(np.median([self.lo[2], self.hi[2]]))
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
         return -(xy @ self.plane[:2] + self.plane[3]) / self.plane[2]
@@ -161,7 +165,7 @@ def _crossing_share(face: np.ndarray, around: np.ndarray, line: np.ndarray, thre
     around, side = around[near], side[near]
 
     def cells(p: np.ndarray) -> np.ndarray:
-        return np.floor(np.c_[p[:, :2] @ direction, p[:, 2]] / cell_m).astype(np.int64)
+        return np.floor(np.column_stack([p[:, :2] @ direction, p[:, 2]]) / cell_m).astype(np.int64)
 
     # which of the face's cells the map holds on each side: grids over the face's cells (in place of sets)
     own = cells(face)
@@ -448,9 +452,9 @@ class StructureModel:
             old = np.arange(n - len(new), dtype=np.int64)
             ours = (self.shown_cls[old] != UNLABELLED) & (vmap.class_ids[old] == self.shown_cls[old])
             ours &= vmap.scores[old] == self.shown_score[old]
-            wrote = np.r_[old[~ours], new]
+            wrote = np.concatenate([old[~ours], new])
         else:
-            wrote = np.r_[np.asarray(rewritten, np.int64), new]
+            wrote = np.concatenate([np.asarray(rewritten, np.int64), new])
         self.lab_cls[wrote] = vmap.class_ids[wrote]
         self.lab_score[wrote] = vmap.scores[wrote]
         rows = sorted_union(n, wrote, *self.dirty)
@@ -485,7 +489,7 @@ class StructureModel:
         self.zbin[rows] = zb
         self.hist += np.bincount(zb, minlength=_HIST_BINS)
         txy = np.floor(pos[:, :2] / self.cfg.tile_m).astype(np.int64)
-        keys = pack_keys(np.c_[txy, np.zeros(len(txy), np.int64)])
+        keys = pack_keys(np.column_stack([txy, np.zeros(len(txy), np.int64)]))
         uniq, inv = np.unique(keys, return_inverse=True)
         idx = self.tile_keys.find(uniq)
         fresh = idx < 0
@@ -498,7 +502,7 @@ class StructureModel:
         tile = idx[inv.ravel()]
         self.tile_of[rows] = tile
         order = np.argsort(tile, kind="stable")
-        bounds = np.r_[0, np.flatnonzero(np.diff(tile[order])) + 1, len(order)]
+        bounds = np.concatenate([[0], np.flatnonzero(np.diff(tile[order])) + 1, [len(order)]])
         for a, b in pairwise(bounds):  # one iteration per tile touched
             t = self.tiles[int(tile[order[a]])]
             t.chunks.append(rows[order[a:b]])
@@ -549,7 +553,7 @@ class StructureModel:
             for s in [s for s in self.slabs if sizes[s.id] < _MIN_SLAB_SHARE * largest]:
                 changed.append(self._drop_slab(s))
             # nor is a floor less than a story above another (desks in rows make a dense band of their own)
-            heights = {s.id: float(np.median([s.lo[2], s.hi[2]])) for s in self.floors}
+            heights = {s.id: s.mid_z for s in self.floors}
             for s in self.floors:
                 if any(0 < heights[s.id] - h < cfg.min_story_m for h in heights.values()):
                     changed.append(self._drop_slab(s))
@@ -633,7 +637,7 @@ class StructureModel:
         return zf, zc
 
     def _ceiling_heights(self) -> np.ndarray:
-        return np.array([float(np.median([s.lo[2], s.hi[2]])) for s in self.slabs if s.kind is Kind.CEILING])
+        return np.array([s.mid_z for s in self.slabs if s.kind is Kind.CEILING])
 
     # ------------------------------------------------------------------------------------------ new voxels
 
@@ -659,7 +663,7 @@ class StructureModel:
             f = np.flatnonzero(free)
             tiles = self.tile_of[rows[f]]
             order = np.argsort(tiles, kind="stable")
-            bounds = np.r_[0, np.flatnonzero(np.diff(tiles[order])) + 1, len(order)]
+            bounds = np.concatenate([[0], np.flatnonzero(np.diff(tiles[order])) + 1, [len(order)]])
             for lo, hi in pairwise(bounds):  # one iteration per tile touched
                 pids = [p for p in self.tiles[int(tiles[order[lo]])].pieces if p in self.wall_of_piece]
                 if pids:
@@ -1094,8 +1098,8 @@ class StructureModel:
         if not np.any(elem >= 0):
             return g
         if counts is None or len(counts) <= int(elem.max()):
-            owner = self.elem[: self.n]
-            counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1).astype(np.float64)
+            # voxels per element id (-1, none, counted in the first bin and left out)
+            counts = np.bincount(self.elem[: self.n] + 1, minlength=self.next_id + 2)[1:].astype(np.float64)
             if self.wall_of_piece:  # a wall piece counts its whole wall
                 pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
                 walls = np.fromiter(self.wall_of_piece.values(), np.int64, len(pids))
