@@ -224,10 +224,12 @@ def ransac_line(
     best = int(np.argmax((score < threshold_m).sum(axis=0)))
     nb, ob = normal[best], float(offset[best])
     every = xy if context is None or not len(context) else np.concatenate([xy, context])
+    before = None
     for _ in range(3):  # refine on the inliers
         on = np.abs(every @ nb + ob) < threshold_m
-        if on.sum() < 3:
-            break
+        if on.sum() < 3 or (before is not None and np.array_equal(on, before)):
+            break  # too few, or the same inliers as the line was fitted on: it would come out the same
+        before = on
         inliers = every[on]
         centre = inliers.mean(axis=0)
         _, vec = np.linalg.eigh(_cov2(inliers - centre))
@@ -485,7 +487,7 @@ class StructureModel:
         zb = np.floor(pos[:, 2] / self.cfg.slab_bin_m).astype(np.int64)
         if self.hist_base is None:
             self.hist_base = int(np.median(zb)) - _HIST_BINS // 2
-        zb = np.clip(zb - self.hist_base, 0, _HIST_BINS - 1)
+        zb = np.minimum(np.maximum(zb - self.hist_base, 0), _HIST_BINS - 1)
         self.zbin[rows] = zb
         self.hist += np.bincount(zb, minlength=_HIST_BINS)
         txy = np.floor(pos[:, :2] / self.cfg.tile_m).astype(np.int64)
