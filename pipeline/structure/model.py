@@ -684,18 +684,14 @@ class StructureModel:
         # voxel arriving joins within its piece's own height, until its tile is refitted
         own = [self.wall_line.get(self.wall_of_piece.get(i, -1)) for i in pids]
         lines = np.array(
-            [
-                np.r_[p.normal, p.offset, p.z, p.u] if line is None else line
-                for line, p in zip(own, ps, strict=True)
-            ]
+            [np.r_[p.normal, p.offset, p.z, p.u] if line is None else line for line, p in zip(own, ps, strict=True)]
         )
         normal = lines[:, :2]
         z = lines[:, 3:5] if whole else np.array([p.z for p in ps])
         # along the wall, a voxel joins within its piece's extent (a wall's gaps are doors, or what stands there)
         u = np.array([self.piece_span.get(i, q[5:7]) for i, q in zip(pids, lines, strict=True)])
-        got = _PieceLines(
-            normal, lines[:, 2], np.c_[-normal[:, 1], normal[:, 0]], z, u, self.tile_xy[[p.tile for p in ps]], np.array(pids)
-        )
+        direction = np.c_[-normal[:, 1], normal[:, 0]]
+        got = _PieceLines(normal, lines[:, 2], direction, z, u, self.tile_xy[[p.tile for p in ps]], np.array(pids))
         self.piece_lines[key] = got
         return got
 
