@@ -16,7 +16,10 @@ def member(elem: np.ndarray, ids: np.ndarray | Collection[int], size: int) -> np
 
 
 def sorted_union(n: int, *parts: np.ndarray) -> np.ndarray:
-    """The distinct rows of `parts` (all in [0, `n`)) in ascending order, as `np.unique(np.concatenate(parts))`."""
+    """The distinct rows of `parts` (all in [0, `n`)) in ascending order, as `np.unique(np.concatenate(parts))`:
+    by sorting where they are few against the map's rows, else by a mask over the map's rows."""
+    if sum(len(p) for p in parts) * 16 < n:  # a scan's new rows in a large map
+        return np.unique(np.concatenate(parts))
     mask = np.zeros(n, bool)
     for part in parts:  # one iteration per part (a handful)
         mask[part] = True

@@ -430,7 +430,8 @@ class StructureModel:
             self.net_score[net] = vmap.scores[net]
         changed.append(self._update_slabs(vmap, finishing))
         changed.extend(self._refit_tiles(vmap, finishing))
-        rows = sorted_union(self.n, *changed) if len(changed) > 1 else new
+        more = [c for c in changed[1:] if len(c)]
+        rows = sorted_union(self.n, new, *more) if more else new  # `new` alone is sorted and distinct
         self._fuse(vmap, rows)
         return rows
 
