@@ -284,6 +284,7 @@ class StructureModel:
         self.tiles: list[_Tile] = []
         self.tile_keys = KeyTable()
         self.tile_xy = np.zeros((0, 2), np.int64)
+        self.around_of: dict[int, tuple[int, list[int]]] = {}  # tile -> (tiles then, `_around`): see there
         self.pieces: dict[int, _Piece] = {}
         self.wall_of_piece: dict[int, int] = {}  # piece id -> wall id (confirmed walls only)
         self.piece_span: dict[int, np.ndarray] = {}  # confirmed piece id -> its extent along its wall's line
@@ -743,19 +744,24 @@ class StructureModel:
             self.last_tiles.append((int(self.tile_xy[i, 0]), int(self.tile_xy[i, 1])))
         return out
 
-    def _block_size(self, i: int) -> int:
+    def _around(self, i: int) -> list[int]:
+        """Tile `i` and those of the 8 around it that exist, in a fixed order (kept until a tile is added)."""
+        known = self.around_of.get(i)
+        if known is not None and known[0] == len(self.tiles):
+            return known[1]
         x, y = self.tile_xy[i]
         ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
         found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
-        return sum(sum(len(c) for c in self.tiles[int(j)].chunks) for j in found if j >= 0)
+        tiles = [int(j) for j in found if j >= 0]
+        self.around_of[i] = (len(self.tiles), tiles)
+        return tiles
+
+    def _block_size(self, i: int) -> int:
+        return sum(sum(len(c) for c in self.tiles[j].chunks) for j in self._around(i))
 
     def _tile_block(self, i: int) -> np.ndarray:
         """Rows of tile `i` and the 8 tiles around it."""
-        x, y = self.tile_xy[i]
-        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
-        keys = pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)])
-        found = self.tile_keys.find(keys)
-        return np.concatenate([self.tiles[int(j)].rows() for j in found if j >= 0])
+        return np.concatenate([self.tiles[j].rows() for j in self._around(i)])
 
     def _refit_tile(self, vmap: VoxelMap, i: int) -> np.ndarray:
         tile = self.tiles[i]
@@ -797,10 +803,7 @@ class StructureModel:
 
     def _block_pieces(self, i: int) -> list[int]:
         """Confirmed wall pieces of tile `i` and the 8 tiles around it."""
-        x, y = self.tile_xy[i]
-        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
-        found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
-        return [p for j in found if j >= 0 for p in self.tiles[int(j)].pieces if p in self.wall_of_piece]
+        return [p for j in self._around(i) for p in self.tiles[j].pieces if p in self.wall_of_piece]
 
     def _join_block_walls(self, vmap: VoxelMap, i: int, block: np.ndarray) -> None:
         """Free voxels of the tiles around on a wall found in any of them (a wall's piece in one tile can miss
