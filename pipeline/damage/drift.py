@@ -104,14 +104,21 @@ def ransac_plane(
     normals, tri = normals[good] / norm[good, None], tri[good]
     d = -np.einsum("ij,ij->i", normals, tri[:, 0])
     sample = points[rng.choice(n, size=min(n, _RANSAC_SCORE_POINTS), replace=False)]
-    support = (np.abs(sample @ normals.T + d) < threshold_m).sum(axis=0)
+    score = sample @ normals.T  # (points, hypotheses), worked in place: one temporary
+    score += d
+    np.abs(score, out=score)
+    support = (score < threshold_m).sum(axis=0)
     best = int(np.argmax(support))
     plane = np.append(normals[best], d[best])
+    before = None
     for _ in range(3):  # refine: least squares on the inliers, then re-select them
         inliers = np.abs(points @ plane[:3] + plane[3]) < threshold_m
+        if before is not None and np.array_equal(inliers, before):
+            return plane, inliers  # the plane was fitted on these: it would come out the same
         if inliers.sum() < 3:
             break
         plane = fit_plane_lsq(points[inliers])
+        before = inliers
     inliers = np.abs(points @ plane[:3] + plane[3]) < threshold_m
     return plane, inliers
 

@@ -24,6 +24,7 @@ from scipy import ndimage
 
 from aftershock.pipeline.classes import SemanticClass
 from aftershock.pipeline.structure.elements import Element, Kind
+from aftershock.pipeline.structure.lookup import member
 
 if TYPE_CHECKING:
     from aftershock.pipeline.structure.model import StructureModel, _Piece
@@ -71,13 +72,16 @@ def _wall_of(model: StructureModel, rows: np.ndarray) -> np.ndarray:
 
 
 def _slab_rows(model: StructureModel, rows: np.ndarray) -> np.ndarray:
-    ids = [s.id for s in model.slabs]
-    return np.isin(model.elem[rows], ids) if ids else np.zeros(len(rows), bool)
+    return member(model.elem[rows], [s.id for s in model.slabs], model.next_id)
+
+
+def _column_rows(model: StructureModel, rows: np.ndarray) -> np.ndarray:
+    return member(model.elem[rows], model.columns.keys(), model.next_id)
 
 
 def _open_rows(model: StructureModel, rows: np.ndarray) -> np.ndarray:
     """Whether each row may take a column: on no slab and in no column found already."""
-    return ~_slab_rows(model, rows) & ~np.isin(model.elem[rows], list(model.columns))
+    return ~member(model.elem[rows], [s.id for s in model.slabs] + list(model.columns), model.next_id)
 
 
 def _box_rows(model: StructureModel, vmap: VoxelMap, rows: np.ndarray, e: Element) -> np.ndarray:
@@ -274,7 +278,7 @@ def fit_engaged_columns(
     thr = cfg.plane_threshold_m
     pos_all = vmap.positions[block]
     keep = (pos_all[:, 2] >= z0) & (pos_all[:, 2] < z0 + reach) & ~_slab_rows(model, block)
-    keep &= ~np.isin(model.elem[block], list(model.columns))
+    keep &= ~_column_rows(model, block)
     rows, pos = block[keep], pos_all[keep]
     if not len(rows):
         return
@@ -295,7 +299,7 @@ def fit_engaged_columns(
         u = pos[:, :2] @ d
         near = (u > u_lo - _WALL_END_M) & (u < u_hi + _WALL_END_M) & (np.abs(s) < cfg.column_max_proud_m + _OPEN_M)
         near &= (owner_wall < 0) | (owner_wall == wall)  # another wall's voxels are that wall's
-        near &= ~np.isin(model.elem[rows], list(model.columns))  # nor those of a column found already
+        near &= ~_column_rows(model, rows)  # nor those of a column found already
         on_plane = near & (np.abs(s) <= thr)
         for side in (1.0, -1.0):  # one iteration per side of the wall
             proud = near & (side * s > thr) & (side * s < cfg.column_max_proud_m + thr)
@@ -347,7 +351,7 @@ def fit_engaged_columns(
                 bs, bu = side * (bpos[:, :2] @ n + o), bpos[:, :2] @ d
                 inside = (bu >= ua - thr) & (bu <= ub + thr) & (bs > -thr) & (bs < front + thr)
                 inside &= (bpos[:, 2] > zf - thr) & (bpos[:, 2] < zc + thr) & ~_slab_rows(model, block)
-                inside &= ~np.isin(model.elem[block], list(model.columns))
+                inside &= ~_column_rows(model, block)
                 _add_column(model, vmap, i, block, e, block[inside])
 
 

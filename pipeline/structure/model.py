@@ -36,6 +36,7 @@ from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
 from aftershock.pipeline.structure.columns import fit_beams, fit_columns
 from aftershock.pipeline.structure.debris import fit_debris
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
+from aftershock.pipeline.structure.lookup import member, sorted_union
 from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
@@ -86,6 +87,10 @@ class _Slab:
     hi: np.ndarray
     fitted_count: int  # voxels in its band when last fitted
     voxels: int = 0  # on its plane when fitted
+    mid_z: float = field(init=False)  # the middle of its extent in height (its height for the story rules)
+
+    def __post_init__(self) -> None:
+        self.mid_z = float(np.median([self.lo[2], self.hi[2]]))
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
         return -(xy @ self.plane[:2] + self.plane[3]) / self.plane[2]
@@ -103,6 +108,20 @@ class _Piece:
     z: tuple[float, float]
     rows: np.ndarray
     moments: np.ndarray  # (6,) count, sum x, sum y, sum xx, sum xy, sum yy of its voxels: its wall's line
+
+
+@dataclass(slots=True, frozen=True)
+class _PieceLines:
+    """Confirmed pieces as `_join_pieces` measures them: line (normal, offset), direction, heights, extent along
+    the line, their tiles' cells and ids."""
+
+    normal: np.ndarray
+    offset: np.ndarray
+    direction: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+    tile_xy: np.ndarray
+    pids: np.ndarray
 
 
 @dataclass(slots=True)
@@ -152,13 +171,21 @@ def _crossing_share(face: np.ndarray, around: np.ndarray, line: np.ndarray, thre
     near = (np.abs(side) > 1.5 * threshold_m) & (np.abs(side) < reach)
     around, side = around[near], side[near]
 
-    def keys(p: np.ndarray) -> np.ndarray:
-        c = np.floor(np.c_[p[:, :2] @ direction, p[:, 2]] / cell_m).astype(np.int64)
-        return (c[:, 0] << 32) ^ (c[:, 1] & 0xFFFFFFFF)
+    def cells(p: np.ndarray) -> np.ndarray:
+        return np.floor(np.column_stack([p[:, :2] @ direction, p[:, 2]]) / cell_m).astype(np.int64)
 
-    own = keys(face)
-    front, back = np.unique(keys(around[side > 0])), np.unique(keys(around[side < 0]))
-    return float(np.mean(np.isin(own, front) & np.isin(own, back)))
+    # which of the face's cells the map holds on each side: grids over the face's cells (in place of sets)
+    own = cells(face)
+    lo = own.min(axis=0)
+    own -= lo
+    shape = own.max(axis=0) + 1
+    seen = []
+    for c in (cells(around[side > 0]) - lo, cells(around[side < 0]) - lo):  # in front, behind
+        c = c[np.all((c >= 0) & (c < shape), axis=1)]
+        grid = np.zeros(shape, bool)
+        grid[c[:, 0], c[:, 1]] = True
+        seen.append(grid[own[:, 0], own[:, 1]])
+    return float(np.mean(seen[0] & seen[1]))
 
 
 def _stands_in_room(face: np.ndarray, overhead: np.ndarray, line: np.ndarray, ceiling_z: float) -> bool:
@@ -195,21 +222,43 @@ def ransac_line(
     good = length > 2 * threshold_m
     if not good.any():
         return None, np.zeros(n, bool)
-    normal = np.c_[-d[good, 1], d[good, 0]] / length[good, None]
+    normal = np.stack([-d[good, 1], d[good, 0]], axis=1) / length[good, None]
     offset = -np.einsum("ij,ij->i", normal, xy[i[good]])
     sample = xy[rng.choice(n, size=min(n, _LINE_SCORE_POINTS), replace=False)]
-    best = int(np.argmax((np.abs(sample @ normal.T + offset) < threshold_m).sum(axis=0)))
+    score = sample @ normal.T  # (points, hypotheses), worked in place: one temporary
+    score += offset
+    np.abs(score, out=score)
+    best = int(np.argmax((score < threshold_m).sum(axis=0)))
     nb, ob = normal[best], float(offset[best])
     every = xy if context is None or not len(context) else np.concatenate([xy, context])
+    before = None
     for _ in range(3):  # refine on the inliers
         on = np.abs(every @ nb + ob) < threshold_m
-        if on.sum() < 3:
-            break
-        centre = every[on].mean(axis=0)
-        _, vec = np.linalg.eigh(np.cov((every[on] - centre).T))
+        if on.sum() < 3 or (before is not None and np.array_equal(on, before)):
+            break  # too few, or the same inliers as the line was fitted on: it would come out the same
+        before = on
+        inliers = every[on]
+        centre = inliers.mean(axis=0)
+        _, vec = np.linalg.eigh(_cov2(inliers - centre))
         nb = vec[:, 0]
         ob = float(-nb @ centre)
-    return np.r_[nb, ob], np.abs(xy @ nb + ob) < threshold_m
+    return np.append(nb, ob), np.abs(xy @ nb + ob) < threshold_m
+
+
+def _longest_run(order: np.ndarray, values: np.ndarray, gap: float) -> np.ndarray:
+    """The longest stretch of `order` (the first of the longest) whose sorted `values` leave no gap over `gap`."""
+    bounds = np.concatenate([[0], np.flatnonzero(np.diff(values) > gap) + 1, [len(order)]])
+    k = int(np.argmax(np.diff(bounds)))
+    return order[bounds[k] : bounds[k + 1]]
+
+
+def _cov2(pts: np.ndarray) -> np.ndarray:
+    """`np.cov(pts.T)` of (N, 2) points, its steps as numpy takes them (the same bits) without its checks."""
+    x = np.array(pts.T, ndmin=2, dtype=np.float64)
+    x -= x.mean(axis=1)[:, None]
+    c = np.dot(x, x.T.conj())
+    c *= np.true_divide(1, x.shape[1] - 1)
+    return c
 
 
 class StructureModel:
@@ -242,10 +291,12 @@ class StructureModel:
         self.tiles: list[_Tile] = []
         self.tile_keys = KeyTable()
         self.tile_xy = np.zeros((0, 2), np.int64)
+        self.around_of: dict[int, tuple[int, list[int]]] = {}  # tile -> (tiles then, `_around`): see there
         self.pieces: dict[int, _Piece] = {}
         self.wall_of_piece: dict[int, int] = {}  # piece id -> wall id (confirmed walls only)
         self.piece_span: dict[int, np.ndarray] = {}  # confirmed piece id -> its extent along its wall's line
         self.wall_line: dict[int, np.ndarray] = {}  # wall id -> its line (normal, offset) over all its pieces, z range
+        self.piece_lines: dict[tuple[tuple[int, ...], bool], _PieceLines] = {}  # `_piece_lines`, until walls change
         self.columns: dict[int, Element] = {}
         self.beams: dict[int, Element] = {}
         self.debris: dict[int, Element] = {}  # masses on a floor slab (pipeline/structure/debris.py)
@@ -388,7 +439,8 @@ class StructureModel:
             self.net_score[net] = vmap.scores[net]
         changed.append(self._update_slabs(vmap, finishing))
         changed.extend(self._refit_tiles(vmap, finishing))
-        rows = np.unique(np.concatenate(changed)) if len(changed) > 1 else new
+        more = [c for c in changed[1:] if len(c)]
+        rows = sorted_union(self.n, new, *more) if more else new  # `new` alone is sorted and distinct
         self._fuse(vmap, rows)
         return rows
 
@@ -413,12 +465,12 @@ class StructureModel:
             old = np.arange(n - len(new), dtype=np.int64)
             ours = (self.shown_cls[old] != UNLABELLED) & (vmap.class_ids[old] == self.shown_cls[old])
             ours &= vmap.scores[old] == self.shown_score[old]
-            wrote = np.r_[old[~ours], new]
+            wrote = np.concatenate([old[~ours], new])
         else:
-            wrote = np.r_[np.asarray(rewritten, np.int64), new]
+            wrote = np.concatenate([np.asarray(rewritten, np.int64), new])
         self.lab_cls[wrote] = vmap.class_ids[wrote]
         self.lab_score[wrote] = vmap.scores[wrote]
-        rows = np.unique(np.concatenate([wrote, *self.dirty]))
+        rows = sorted_union(n, wrote, *self.dirty)
         self.dirty = []
         self.last_applied = len(rows)
         fused = self.fused[rows]
@@ -468,11 +520,11 @@ class StructureModel:
         zb = np.floor(pos[:, 2] / self.cfg.slab_bin_m).astype(np.int64)
         if self.hist_base is None:
             self.hist_base = int(np.median(zb)) - _HIST_BINS // 2
-        zb = np.clip(zb - self.hist_base, 0, _HIST_BINS - 1)
+        zb = np.minimum(np.maximum(zb - self.hist_base, 0), _HIST_BINS - 1)
         self.zbin[rows] = zb
-        np.add.at(self.hist, zb, 1)
+        self.hist += np.bincount(zb, minlength=_HIST_BINS)
         txy = np.floor(pos[:, :2] / self.cfg.tile_m).astype(np.int64)
-        keys = pack_keys(np.c_[txy, np.zeros(len(txy), np.int64)])
+        keys = pack_keys(np.column_stack([txy, np.zeros(len(txy), np.int64)]))
         uniq, inv = np.unique(keys, return_inverse=True)
         idx = self.tile_keys.find(uniq)
         fresh = idx < 0
@@ -485,7 +537,7 @@ class StructureModel:
         tile = idx[inv.ravel()]
         self.tile_of[rows] = tile
         order = np.argsort(tile, kind="stable")
-        bounds = np.r_[0, np.flatnonzero(np.diff(tile[order])) + 1, len(order)]
+        bounds = np.concatenate([[0], np.flatnonzero(np.diff(tile[order])) + 1, [len(order)]])
         for a, b in pairwise(bounds):  # one iteration per tile touched
             t = self.tiles[int(tile[order[a]])]
             t.chunks.append(rows[order[a:b]])
@@ -536,7 +588,7 @@ class StructureModel:
             for s in [s for s in self.slabs if sizes[s.id] < _MIN_SLAB_SHARE * largest]:
                 changed.append(self._drop_slab(s))
             # nor is a floor less than a story above another (desks in rows make a dense band of their own)
-            heights = {s.id: float(np.median([s.lo[2], s.hi[2]])) for s in self.floors}
+            heights = {s.id: s.mid_z for s in self.floors}
             for s in self.floors:
                 if any(0 < heights[s.id] - h < cfg.min_story_m for h in heights.values()):
                     changed.append(self._drop_slab(s))
@@ -604,7 +656,7 @@ class StructureModel:
         """Whether each row lies on a wall piece (not on a slab, column or beam)."""
         if not self.pieces:
             return np.zeros(len(rows), bool)
-        return np.isin(self.elem[rows], np.fromiter(self.pieces, np.int64, len(self.pieces)))
+        return member(self.elem[rows], self.pieces.keys(), self.next_id)
 
     def storey(self, xy: np.ndarray, z: float) -> tuple[float, float] | None:
         """(floor, ceiling) heights at `xy` of the story a sensor at height `z` stands in; None without a floor.
@@ -620,7 +672,7 @@ class StructureModel:
         return zf, zc
 
     def _ceiling_heights(self) -> np.ndarray:
-        return np.array([float(np.median([s.lo[2], s.hi[2]])) for s in self.slabs if s.kind is Kind.CEILING])
+        return np.array([s.mid_z for s in self.slabs if s.kind is Kind.CEILING])
 
     # ------------------------------------------------------------------------------------------ new voxels
 
@@ -646,40 +698,55 @@ class StructureModel:
             f = np.flatnonzero(free)
             tiles = self.tile_of[rows[f]]
             order = np.argsort(tiles, kind="stable")
-            bounds = np.r_[0, np.flatnonzero(np.diff(tiles[order])) + 1, len(order)]
+            bounds = np.concatenate([[0], np.flatnonzero(np.diff(tiles[order])) + 1, [len(order)]])
             for lo, hi in pairwise(bounds):  # one iteration per tile touched
                 pids = [p for p in self.tiles[int(tiles[order[lo]])].pieces if p in self.wall_of_piece]
                 if pids:
-                    self._join_pieces(vmap, rows[f[order[lo:hi]]], pids)
+                    self._join_pieces(vmap, rows[f[order[lo:hi]]], pids, own_tile=True)
         return rows
 
-    def _join_pieces(self, vmap: VoxelMap, rows: np.ndarray, pids: list[int], whole: bool = False) -> None:
+    def _piece_lines(self, pids: list[int], whole: bool) -> _PieceLines:
+        """The lines `_join_pieces` measures pieces by, kept until the walls change (`_merge_walls`)."""
+        key = (tuple(pids), whole)
+        got = self.piece_lines.get(key)
+        if got is not None:
+            return got
         ps = [self.pieces[i] for i in pids]
         # a confirmed piece is measured as its wall: the wall's line, and (`whole`, at a refit of the block) its
         # height over all its pieces (a facade seen in pieces: a tile's piece may hold only its lower storey); a
         # voxel arriving joins within its piece's own height, until its tile is refitted
+        own = [self.wall_line.get(self.wall_of_piece.get(i, -1)) for i in pids]
         lines = np.array(
-            [
-                self.wall_line.get(self.wall_of_piece.get(i, -1), np.r_[p.normal, p.offset, p.z, p.u])
-                for i, p in zip(pids, ps, strict=True)
-            ]
+            [np.r_[p.normal, p.offset, p.z, p.u] if line is None else line for line, p in zip(own, ps, strict=True)]
         )
-        normal, offset = lines[:, :2], lines[:, 2]
+        normal = lines[:, :2]
         z = lines[:, 3:5] if whole else np.array([p.z for p in ps])
         # along the wall, a voxel joins within its piece's extent (a wall's gaps are doors, or what stands there)
         u = np.array([self.piece_span.get(i, q[5:7]) for i, q in zip(pids, lines, strict=True)])
+        direction = np.c_[-normal[:, 1], normal[:, 0]]
+        got = _PieceLines(normal, lines[:, 2], direction, z, u, self.tile_xy[[p.tile for p in ps]], np.array(pids))
+        self.piece_lines[key] = got
+        return got
+
+    def _join_pieces(
+        self, vmap: VoxelMap, rows: np.ndarray, pids: list[int], whole: bool = False, own_tile: bool = False
+    ) -> None:
+        """Free `rows` onto the confirmed pieces `pids` (`own_tile`: all of the rows' own tile)."""
+        lines = self._piece_lines(pids, whole)
+        normal, offset, z, u = lines.normal, lines.offset, lines.z, lines.u
         pos = vmap.positions[rows]
         d = np.abs(pos[:, :2] @ normal.T + offset)  # (F, P): off its wall's line
-        along = pos[:, :2] @ np.c_[-normal[:, 1], normal[:, 0]].T
+        along = pos[:, :2] @ lines.direction.T
         inside = (along > u[:, 0] - 0.2) & (along < u[:, 1] + 0.2)
         inside &= (pos[:, 2:3] > z[:, 0] - 0.2) & (pos[:, 2:3] < z[:, 1] + 0.2)
         # a voxel joins a piece of its own tile or the next (a refit forgets its pieces' voxels in its 3 x 3 block)
-        apart = np.abs(self.tile_xy[self.tile_of[rows]][:, None, :] - self.tile_xy[[p.tile for p in ps]][None])
-        inside &= apart.max(axis=2) <= 1
+        if not own_tile:
+            apart = np.abs(self.tile_xy[self.tile_of[rows]][:, None, :] - lines.tile_xy[None])
+            inside &= apart.max(axis=2) <= 1
         score = np.where(inside & (d < self.cfg.plane_threshold_m), d, np.inf)
         best = np.argmin(score, axis=1)
         hit = np.isfinite(score[np.arange(len(rows)), best])
-        self.elem[rows[hit]] = np.array(pids)[best[hit]]
+        self.elem[rows[hit]] = lines.pids[best[hit]]
         self.kind_cls[rows[hit]] = SemanticClass.WALL
 
     # ------------------------------------------------------------------------------------------ tiles
@@ -708,19 +775,24 @@ class StructureModel:
             self.last_tiles.append((int(self.tile_xy[i, 0]), int(self.tile_xy[i, 1])))
         return out
 
-    def _block_size(self, i: int) -> int:
+    def _around(self, i: int) -> list[int]:
+        """Tile `i` and those of the 8 around it that exist, in a fixed order (kept until a tile is added)."""
+        known = self.around_of.get(i)
+        if known is not None and known[0] == len(self.tiles):
+            return known[1]
         x, y = self.tile_xy[i]
         ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
         found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
-        return sum(sum(len(c) for c in self.tiles[int(j)].chunks) for j in found if j >= 0)
+        tiles = [int(j) for j in found if j >= 0]
+        self.around_of[i] = (len(self.tiles), tiles)
+        return tiles
+
+    def _block_size(self, i: int) -> int:
+        return sum(sum(len(c) for c in self.tiles[j].chunks) for j in self._around(i))
 
     def _tile_block(self, i: int) -> np.ndarray:
         """Rows of tile `i` and the 8 tiles around it."""
-        x, y = self.tile_xy[i]
-        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
-        keys = pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)])
-        found = self.tile_keys.find(keys)
-        return np.concatenate([self.tiles[int(j)].rows() for j in found if j >= 0])
+        return np.concatenate([self.tiles[j].rows() for j in self._around(i)])
 
     def _refit_tile(self, vmap: VoxelMap, i: int) -> np.ndarray:
         tile = self.tiles[i]
@@ -734,17 +806,18 @@ class StructureModel:
             self.debris.pop(e, None)
         block = self._tile_block(i)
         # forget this tile's columns and beams (they may reach into the tiles around) and wall pieces
-        stale = block[np.isin(self.elem[block], np.fromiter(old, np.int64, len(old)))] if old else block[:0]
+        stale = block[member(self.elem[block], old, self.next_id)] if old else block[:0]
         self.elem[stale] = -1
         self.kind_cls[stale] = UNLABELLED
         for p in tile.pieces:
             self.pieces.pop(p, None)
+        self.piece_lines = {}
         tile.elements, tile.pieces = [], []
         if self.outdoor:  # walls first: a facade's foot is wall, not ground
             was_ground = rows[self.elem[rows] == 0]
             self.elem[was_ground] = -1
             self.kind_cls[was_ground] = UNLABELLED
-            self._fit_walls(vmap, i, rows, None, block)
+            self._fit_walls(vmap, i, None, block)
             walls = self._merge_walls()
             self._join_block_walls(vmap, i, block)
             return np.concatenate([stale, walls, self._ground_rows(vmap, block), block])
@@ -752,7 +825,7 @@ class StructureModel:
         zs = float(np.median(self.sensor_z[rows])) if len(rows) else 0.0
         storey = self.storey(centre, zs)
         # walls first: what stands or hangs free of them is a column or a beam
-        self._fit_walls(vmap, i, rows, storey, block)
+        self._fit_walls(vmap, i, storey, block)
         walls = self._merge_walls()
         self._join_block_walls(vmap, i, block)
         if storey is not None:
@@ -764,10 +837,7 @@ class StructureModel:
 
     def _block_pieces(self, i: int) -> list[int]:
         """Confirmed wall pieces of tile `i` and the 8 tiles around it."""
-        x, y = self.tile_xy[i]
-        ox, oy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
-        found = self.tile_keys.find(pack_keys(np.c_[x + ox.ravel(), y + oy.ravel(), np.zeros(9, np.int64)]))
-        return [p for j in found if j >= 0 for p in self.tiles[int(j)].pieces if p in self.wall_of_piece]
+        return [p for j in self._around(i) for p in self.tiles[j].pieces if p in self.wall_of_piece]
 
     def _join_block_walls(self, vmap: VoxelMap, i: int, block: np.ndarray) -> None:
         """Free voxels of the tiles around on a wall found in any of them (a wall's piece in one tile can miss
@@ -808,16 +878,18 @@ class StructureModel:
             rows = rows[(z > storey[0] + self.cfg.plane_threshold_m) & (z < storey[1] - self.cfg.plane_threshold_m)]
         return rows
 
-    def _fit_walls(
-        self, vmap: VoxelMap, i: int, rows: np.ndarray, storey: tuple[float, float] | None, block: np.ndarray
-    ) -> None:
+    def _fit_walls(self, vmap: VoxelMap, i: int, storey: tuple[float, float] | None, block: np.ndarray) -> None:
         """Vertical planes of a tile, one after another (RANSAC); each a wall piece with its voxels. A piece's
         line is measured on the tiles around too (`block`), so that the pieces of one wall in neighbouring tiles
         lie on one line and merge (a tile holds a short stretch of a wall, whose direction it measures badly)."""
         cfg = self.cfg
-        rows = self._wall_rows(vmap, rows, storey)
+        near = self._wall_rows(vmap, block, storey)
+        rows = near[self.tile_of[near] == i]  # the tile's own, in its order (its rows are one run of `block`)
         rows = rows[self.elem[rows] < 0]
-        context = vmap.positions[np.setdiff1d(self._wall_rows(vmap, block, storey), rows), :2]
+        rest = np.zeros(self.n, bool)  # the block's wall rows but the tile's free ones, in order
+        rest[near] = True
+        rest[rows] = False
+        context = vmap.positions[np.flatnonzero(rest), :2]
         around = vmap.positions[block]
         overhead = around[self.kind_cls[block] == SemanticClass.CEILING]  # the ceiling slab's voxels around
         rng = np.random.default_rng(i)
@@ -836,16 +908,15 @@ class StructureModel:
             along = p[:, :2] @ np.array([-normal[1], normal[0]])
             # the largest run along the wall without a gap wider than _WALL_GAP_M
             order = np.argsort(along)
-            cuts = np.flatnonzero(np.diff(along[order]) > _WALL_GAP_M) + 1
-            runs = np.split(order, cuts)
-            run = max(runs, key=len)
+            run = _longest_run(order, along[order], _WALL_GAP_M)
             # ... and its largest band in height without a gap wider than _WALL_Z_GAP_M: a face is seen whole
             # over its height, a line through furniture and a ceiling's fixtures leaves the storey's middle empty
             zorder = run[np.argsort(p[run, 2])]
-            zcuts = np.flatnonzero(np.diff(p[zorder, 2]) > _WALL_Z_GAP_M) + 1
-            run = max(np.split(zorder, zcuts), key=len)
+            run = _longest_run(zorder, p[zorder, 2], _WALL_Z_GAP_M)
+            left = np.ones(len(keep_rows), bool)  # the inliers off the run go back, in order
+            left[run] = False
             if len(run) < cfg.wall_piece_min_voxels:
-                rows = np.r_[rows, np.setdiff1d(keep_rows, keep_rows[run])]
+                rows = np.concatenate([rows, np.sort(keep_rows[left])])
                 continue
             if _fill_share(np.c_[along[run], p[run, 2]], _FACE_CELL_M) < _MIN_FACE_FILL:
                 continue  # a strip through furniture or the ground seen from above, not a face standing up
@@ -863,7 +934,7 @@ class StructureModel:
             )  # fmt: skip
             self.pieces[piece.id] = piece
             self.tiles[i].pieces.append(piece.id)
-            rows = np.r_[rows, np.setdiff1d(keep_rows, piece.rows)]
+            rows = np.concatenate([rows, np.sort(keep_rows[left])])
 
     def _merge_walls(self) -> np.ndarray:
         """Pieces of every tile joined into walls (parallel, coplanar, touching along the wall); a wall is
@@ -871,6 +942,7 @@ class StructureModel:
         wall changed."""
         cfg = self.cfg
         before = dict(self.wall_of_piece)
+        self.piece_lines = {}
         ids = np.array(list(self.pieces), np.int64)
         self.wall_of_piece = {}
         self.wall_line = {}
@@ -1098,8 +1170,8 @@ class StructureModel:
         if not np.any(elem >= 0):
             return g
         if counts is None or len(counts) <= int(elem.max()):
-            owner = self.elem[: self.n]
-            counts = np.bincount(owner[owner >= 0], minlength=self.next_id + 1).astype(np.float64)
+            # voxels per element id (-1, none, counted in the first bin and left out)
+            counts = np.bincount(self.elem[: self.n] + 1, minlength=self.next_id + 2)[1:].astype(np.float64)
             if self.wall_of_piece:  # a wall piece counts its whole wall
                 pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
                 walls = np.fromiter(self.wall_of_piece.values(), np.int64, len(pids))
