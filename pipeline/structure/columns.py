@@ -35,7 +35,7 @@ _RING_MAX_SHARE: Final = 0.35  # ... (wall planes left out)
 _LINE_MAX_M: Final = 0.6  # a footprint on one line (one face seen) longer than this is a wall stub
 _STRIP_M: Final = 0.45  # a footprint this thin across a wall's line, on it, is the wall's (an end, a stub)
 _WALL_END_M: Final = 0.5  # a footprint on a wall's line within this past its ends is the wall's end
-_ONE_SIDED_FACE: Final = 0.9  # ... (or on one side, nothing seen on the other, with this share on its face)
+_ONE_SIDED_FACE: Final = 0.9  # ... (or, `engaged_one_sided`, on one side with this share on its face)
 _BESIDE_M: Final = 0.5  # beside an engaged column, this far along the wall, the wall is one clean plane ...
 _MIN_BESIDE_FLAT: Final = 0.7  # ... holding this share of the voxels in front of it up to the column's face ...
 _MIN_BESIDE_VOXELS: Final = 5  # ... and at least this many, on each side seen (one at least)
@@ -339,8 +339,11 @@ def fit_engaged_columns(
                 if False in beside or True not in beside:
                     continue  # no clean wall plane on every side seen (a wall seen twice, furniture in a row) ...
                 # ... or on none: a column at a wall's end or by an opening has the wall's plane on one side, and
-                # then shows its own flat face (a wall's end seen from its side, a partition's stub, does not)
-                if None in beside and np.mean(np.abs(depth - front) < thr) < _ONE_SIDED_FACE:
+                # then shows its own flat face (a wall's end seen from its side, a partition's stub, does not);
+                # off by default (`engaged_one_sided`): a wall's end seen thick passes it too
+                if None in beside and (
+                    not cfg.engaged_one_sided or np.mean(np.abs(depth - front) < thr) < _ONE_SIDED_FACE
+                ):
                     continue
                 corners_us = np.array([[ua, -thr], [ub, -thr], [ua, front + thr], [ub, front + thr]])
                 corners = corners_us[:, :1] * d + (side * corners_us[:, 1:] - o) * n
