@@ -13,7 +13,7 @@ import pytest
 from aftershock.pipeline.classes import NETWORK_CLASSES, NUM_CLASSES, SemanticClass
 from aftershock.pipeline.cloud_io import read_cloud
 from aftershock.pipeline.config import Environment, StructureConfig
-from aftershock.pipeline.structure import Kind, StructureModel
+from aftershock.pipeline.structure import Element, Kind, StructureModel
 from aftershock.pipeline.voxel_map import VoxelMap
 
 C = SemanticClass
@@ -348,6 +348,47 @@ def test_a_wall_seen_from_behind_or_a_thin_walls_far_face_is_no_column() -> None
     model.update(vmap, sensor_z=1.0)
     model.finish(vmap)
     assert not [e for e in model.elements(vmap) if e.kind is Kind.COLUMN]
+
+
+def _opening_beside(pts: np.ndarray, truth: np.ndarray, width: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+    """`engaged_room`'s room with its wall at y = 6 open over `width` on the column's left (a doorway there):
+    nothing is seen on that side of the column, on either side of the wall's plane."""
+    cut = (truth == C.WALL) & (np.abs(pts[:, 1] - 6.0) < 1e-6) & (pts[:, 0] < 4.75) & (pts[:, 0] > 4.75 - width)
+    return pts[~cut], truth[~cut]
+
+
+def _columns(pts: np.ndarray, one_sided: bool = True) -> list[Element]:
+    vmap, _ = _map(pts, np.full(len(pts), C.WALL, np.uint16))
+    model = StructureModel(StructureConfig(engaged_one_sided=one_sided), Environment.INDOOR, vmap.voxel_size)
+    model.observe(vmap, np.array([4.0, 3.0, 1.0]))
+    model.update(vmap, sensor_z=1.0)
+    model.finish(vmap)
+    return [e for e in model.elements(vmap) if e.kind is Kind.COLUMN]
+
+
+@pytest.mark.parametrize("proud", [0.15, 0.2])
+def test_a_column_by_an_opening_with_the_walls_plane_on_one_side_only_is_found_when_one_sided_is_on(
+    proud: float,
+) -> None:
+    """A column at a wall's end or by a doorway: the wall's plane is clean on one side, nothing was seen on the
+    other (the office generator's columns on the outer walls, seen from one side only). With
+    `structure.engaged_one_sided` (off by default) it is found; by default both sides must be clean."""
+    pts, _ = _opening_beside(*engaged_room(proud=proud))
+    columns = _columns(pts)
+    assert len(columns) == 1
+    assert np.allclose((columns[0].lo[:2] + columns[0].hi[:2]) / 2, [5.0, 6.0 - proud / 2], atol=0.12)
+    assert not _columns(pts, one_sided=False)
+
+
+def test_something_stepped_by_an_opening_with_the_wall_on_one_side_only_is_no_column() -> None:
+    """With the wall's plane on one side only, what stands proud must show one flat face: a stub with its face
+    at two depths (a shelf's end, a partition's return) beside a doorway is no column, though it would pass with
+    a clean wall on both sides."""
+    pts, truth = engaged_room(proud=0.25)
+    face = (truth == C.COLUMN) & (np.abs(pts[:, 1] - 5.75) < 1e-6) & (pts[:, 0] < 5.0)
+    pts[face, 1] = 5.87  # half of its face 0.12 m further back
+    assert _columns(pts), "with the wall clean on both sides it passes (the test below is the one-sided rule's)"
+    assert not _columns(_opening_beside(pts, truth)[0])
 
 
 def test_a_walls_head_seen_without_its_lower_part_is_not_a_beam() -> None:

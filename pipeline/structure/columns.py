@@ -36,9 +36,10 @@ _RING_MAX_SHARE: Final = 0.35  # ... (wall planes left out)
 _LINE_MAX_M: Final = 0.6  # a footprint on one line (one face seen) longer than this is a wall stub
 _STRIP_M: Final = 0.45  # a footprint this thin across a wall's line, on it, is the wall's (an end, a stub)
 _WALL_END_M: Final = 0.5  # a footprint on a wall's line within this past its ends is the wall's end
+_ONE_SIDED_FACE: Final = 0.9  # ... (or, `engaged_one_sided`, on one side with this share on its face)
 _BESIDE_M: Final = 0.5  # beside an engaged column, this far along the wall, the wall is one clean plane ...
 _MIN_BESIDE_FLAT: Final = 0.7  # ... holding this share of the voxels in front of it up to the column's face ...
-_MIN_BESIDE_VOXELS: Final = 5  # ... and at least this many, on both sides
+_MIN_BESIDE_VOXELS: Final = 5  # ... and at least this many, on each side seen (one at least)
 _LONG_WALL_M: Final = 1.5  # a wall piece this long is a wall: its line separates what stands beside it ...
 _CUT_CELLS: Final = 2  # ... over this many cells either side (a wall seen twice is thicker than it is)
 _PANEL_M: Final = 0.2  # a footprint this thin (and longer than _LINE_MAX_M) is a panel: a door leaf, a board ...
@@ -246,9 +247,12 @@ def _block_walls(model: StructureModel, i: int) -> dict[int, list[_Piece]]:
 
 def _clean_wall(
     near: np.ndarray, on_plane: np.ndarray, u: np.ndarray, depth: np.ndarray, lo: float, hi: float, front: float
-) -> bool:
+) -> bool | None:
     """Whether the wall is one clean plane between `lo` and `hi` along it: most voxels in front of it, up to
-    `front`, lie on its plane."""
+    `front`, lie on its plane. None where nothing at all was seen there, on either side of the plane (the wall
+    ends at the column, an opening beside it, or the column hid it from the sensor)."""
+    if not (near & (u >= lo) & (u < hi)).any():
+        return None
     there = near & (u >= lo) & (u < hi) & (depth < front)
     flat = on_plane[there]
     return bool(flat.sum() >= _MIN_BESIDE_VOXELS and flat.mean() >= _MIN_BESIDE_FLAT)
@@ -332,11 +336,19 @@ def fit_engaged_columns(
                 # the wall's plane beside the run (the column stands in or against this wall)
                 if front < cfg.engaged_min_proud_m:
                     continue  # within what a wall seen twice (drift) or bent stands off its plane
-                if not all(
+                beside = [
                     _clean_wall(near, on_plane, u, side * s, lo, hi, front + thr)
                     for lo, hi in ((ua - _BESIDE_M, ua - thr), (ub + thr, ub + _BESIDE_M))
+                ]
+                if False in beside or True not in beside:
+                    continue  # no clean wall plane on every side seen (a wall seen twice, furniture in a row) ...
+                # ... or on none: a column at a wall's end or by an opening has the wall's plane on one side, and
+                # then shows its own flat face (a wall's end seen from its side, a partition's stub, does not);
+                # off by default (`engaged_one_sided`): a wall's end seen thick passes it too
+                if None in beside and (
+                    not cfg.engaged_one_sided or np.mean(np.abs(depth - front) < thr) < _ONE_SIDED_FACE
                 ):
-                    continue  # no clean wall plane on both sides: a wall seen twice, furniture in a row
+                    continue
                 corners_us = np.array([[ua, -thr], [ub, -thr], [ua, front + thr], [ub, front + thr]])
                 corners = corners_us[:, :1] * d + (side * corners_us[:, 1:] - o) * n
                 e = Element(
