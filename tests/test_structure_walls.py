@@ -115,4 +115,3 @@ def test_without_wall_objects_a_walls_voxels_are_left_to_the_clustering() -> Non
     pts, truth = scene()
     model, vmap, rows = _run_openings(pts, StructureConfig(wall_objects=False))
     assert np.mean(_wall_keys(model, vmap, rows)[truth == C.WALL] < 0) > 0.9
-

@@ -79,7 +79,7 @@ NON_STRUCTURAL: Final = np.ones(1 << 16, bool)  # per class id: may lie on an el
 NON_STRUCTURAL[[c.value for c in CLASS_OF.values()]] = False
 NON_STRUCTURAL[UNLABELLED] = False
 # per class id: an element of this class is one object (a story's slab, a column, a beam: one true instance each in
-# the simulator); wall elements are not (a bookcase's face reads as a wall, a wall's faces as two walls)
+# the simulator); a wall piece's voxel takes its wall's object instead (`wall_object`: one per wall line, both faces)
 OBJECT_CLASSES: Final = np.zeros(1 << 16, bool)
 OBJECT_CLASSES[[SemanticClass.FLOOR, SemanticClass.CEILING, SemanticClass.COLUMN, SemanticClass.BEAM]] = True
 
@@ -1239,8 +1239,8 @@ class StructureModel:
 
     def object_keys(self, n: int) -> np.ndarray:
         """Per map row below `n`: the element whose object the voxel takes (a slab, column or beam whose class
-        the fusion gave it), -1 where none (no floor found, outdoors, off the elements, or the network's
-        confident label stood)."""
+        the fusion gave it; a wall piece's wall object, `_wall_objects`), -1 where none (no floor found, outdoors,
+        off the elements, an opening's or a furniture face's voxel, or the network's confident label stood)."""
         keys = np.full(n, -1, np.int64)
         if self.outdoor or not self.has_floor:
             return keys
