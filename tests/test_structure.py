@@ -538,7 +538,7 @@ def test_a_facade_seen_in_pieces_is_one_wall() -> None:
     assert np.mean(vmap.class_ids[rows[: len(ground)]] == C.GROUND) > 0.95
 
 
-def test_a_rooms_floor_ceiling_column_and_beam_each_give_their_voxels_one_object_and_walls_none() -> None:
+def test_a_rooms_floor_ceiling_column_beam_and_each_wall_give_their_voxels_one_object() -> None:
     pts, truth = room()
     vmap, rows = _map(pts, np.full(len(pts), C.CLUTTER, np.uint16))
     model = _run(vmap)
@@ -549,8 +549,13 @@ def test_a_rooms_floor_ceiling_column_and_beam_each_give_their_voxels_one_object
         assert np.mean(mine == by_kind[kind]) > share, cls.name
     beams = {e.id for e in model.elements(vmap) if e.kind is Kind.BEAM}
     assert np.mean(np.isin(keys[np.unique(rows[truth == C.BEAM])], list(beams))) > 0.5
-    # a wall's voxels are left to the clustering (a wall element may be a bookcase's face, or half a wall)
-    assert np.mean(keys[np.unique(rows[truth == C.WALL])] < 0) > 0.9
+    # each of the four walls one object of its own (structure.wall_objects)
+    pos = pts[truth == C.WALL]
+    wall_keys = keys[rows[truth == C.WALL]]
+    sides = [pos[:, 1] < 0.05, pos[:, 1] > 5.95, pos[:, 0] < 0.05, pos[:, 0] > 7.95]
+    own = [int(np.bincount(wall_keys[m][wall_keys[m] >= 0]).argmax()) for m in sides]
+    assert len(set(own)) == 4
+    assert all(np.mean(wall_keys[m] == k) > 0.8 for m, k in zip(sides, own, strict=True))
 
 
 def test_without_a_floor_no_voxel_takes_an_elements_object() -> None:

@@ -24,9 +24,10 @@ Merges are recorded on the frame as `InstanceMerge`s (and returned by `finish`),
 
 Where the structure model runs (`cluster.structure_objects`), geometry decides structural objects (#28): a voxel
 on a confirmed slab, column or beam shows that element's object (one per element; a refitted element keeps its
-object id), over the clustering, which goes on underneath unchanged (so do the class votes over its instances);
-at the end of the run the map itself takes the element objects (`claim`), and an element's object never merges
-with another's.
+object id), a voxel on a wall its wall's object (`structure.wall_objects`: one per wall line, both faces, openings
+and furniture faces left out), over the clustering, which goes on underneath unchanged (so do the class votes over
+its instances); at the end of the run the map itself takes the element objects (`claim`), and an element's object
+never merges with another's.
 Every setting was chosen on validation missions (docs/decisions.md#clustering-before-12-objects-not-fragments).
 
 Modules: `clusterer` (InstanceClusterer: the two levels above), `stats` (per-instance sums, the plane cache and

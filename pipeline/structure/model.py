@@ -63,6 +63,14 @@ _WALL_Z_GAP_M: Final = (
 )
 _WALL_HEAD_M: Final = 0.5  # a face stopping this far under the ceiling with the ceiling seen ...
 _CEILING_SIDE_M: Final = 1.0  # ... within this on both sides of it stands in the room
+_WALL_LINE_DEG: Final = 15.0  # a short stretch's direction is measured this badly (1.5 m of a wall seen from 3 m)
+_COPLANAR_M: Final = 0.15  # stretches of one face: the shorter's middle this close to the longer's line
+_FURNITURE_M: Final = (0.15, 0.6)  # a face this far in front of a wall (a bookcase 0.3-0.42 m deep, a cabinet) ...
+_FURNITURE_WIDTH_M: Final = 3.0  # ... at most this wide, beside or before that wall, seen from its side: furniture
+_WALL_OBJECT_M: Final = 2.5  # a wall object spans this far along its line at least (bookcases stand 0.8-1.4 m wide)
+_OVER_M: Final = 1.0  # rays crossing a face's plane up to this far over its top, within its width ...
+_OVER_BEYOND_M: Final = 0.25  # ... to returns this far behind it ...
+_OVER_SHARE: Final = 0.5  # ... in this share of its (0.5 m) cells: it stops under the ceiling, furniture
 _FACADE_RELIEF_M: Final = 0.5  # outdoors a facade's recesses, balconies and pilasters stand this far off its plane
 _FACADE_DEG: Final = 30.0  # ... and a slanted line RANSAC drew through that relief turns this far from it at most
 _SLAB_FITS_PER_SCAN: Final = 2  # a floor and a ceiling band in the same scan
@@ -72,7 +80,7 @@ NON_STRUCTURAL: Final = np.ones(1 << 16, bool)  # per class id: may lie on an el
 NON_STRUCTURAL[[c.value for c in CLASS_OF.values()]] = False
 NON_STRUCTURAL[UNLABELLED] = False
 # per class id: an element of this class is one object (a story's slab, a column, a beam: one true instance each in
-# the simulator); wall elements are not (a bookcase's face reads as a wall, a wall's faces as two walls)
+# the simulator); a wall piece's voxel takes its wall's object instead (`wall_object`: one per wall line, both faces)
 OBJECT_CLASSES: Final = np.zeros(1 << 16, bool)
 OBJECT_CLASSES[[SemanticClass.FLOOR, SemanticClass.CEILING, SemanticClass.COLUMN, SemanticClass.BEAM]] = True
 
@@ -297,6 +305,7 @@ class StructureModel:
         self.piece_span: dict[int, np.ndarray] = {}  # confirmed piece id -> its extent along its wall's line
         self.wall_line: dict[int, np.ndarray] = {}  # wall id -> its line (normal, offset) over all its pieces, z range
         self.piece_lines: dict[tuple[tuple[int, ...], bool], _PieceLines] = {}  # `_piece_lines`, until walls change
+        self.wall_object: dict[int, int] = {}  # wall id -> the wall object it is part of (none: furniture's face)
         self.columns: dict[int, Element] = {}
         self.beams: dict[int, Element] = {}
         self.debris: dict[int, Element] = {}  # masses on a floor slab (pipeline/structure/debris.py)
@@ -451,6 +460,7 @@ class StructureModel:
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
         self._refit_debris(vmap)
         self._find_openings(vmap)
+        self.wall_object = self._wall_objects(vmap)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
 
     def apply(self, vmap: VoxelMap, rewritten: np.ndarray | None = None) -> None:
@@ -990,6 +1000,7 @@ class StructureModel:
             self.wall_line = self._wall_lines(
                 ps, group, ok, first_id, normal[lead], np.c_[lo_z, hi_z], ends, self.piece_span
             )
+        self.wall_object = self._wall_objects()
         out: list[np.ndarray] = [np.zeros(0, np.int64)]
         for pid in self.wall_of_piece.keys() - before.keys():  # newly confirmed: their voxels become wall
             rows = self.pieces[pid].rows
@@ -1038,6 +1049,108 @@ class StructureModel:
             for k, span in zip(members, np.sort(along, axis=1), strict=True):  # one iteration per piece
                 spans[ps[k].id] = span
         return out
+
+    def _sensor_side(self, wall: int, line: np.ndarray) -> float:
+        """Which side of its line (+1, -1 along its normal) a wall was seen from (0: unknown): where the sensor
+        stood when most of its voxels opened."""
+        rows = np.concatenate([self.pieces[p].rows for p, w in self.wall_of_piece.items() if w == wall])
+        origin = self.sight.of(rows[:: max(1, len(rows) // 200)])
+        origin = origin[np.isfinite(origin[:, 0])]
+        if not len(origin):
+            return 0.0
+        return float(np.sign(np.median(np.sign(origin[:, :2] @ line[:2] + line[2]))))
+
+    def _seen_over(self, vmap: VoxelMap, lines: np.ndarray, side: np.ndarray) -> np.ndarray:
+        """Per wall line (rows of `wall_line`, seen from `side`): the share of its 0.5 m cells along it over which
+        a ray from the sensor crossed its plane within `_OVER_M` over its top and returned `_OVER_BEYOND_M` or more
+        behind it (0 where no ray is known)."""
+        out = np.zeros(len(lines))
+        origin = self.sight.of(np.arange(self.n, dtype=np.int64)).astype(np.float64)
+        known = np.isfinite(origin[:, 0])
+        if not known.any():
+            return out
+        pos, origin = vmap.positions[: self.n][known], origin[known]
+        for k, line in enumerate(lines):  # one iteration per wall
+            if side[k] == 0:
+                continue
+            n, off, top, u0, u1 = line[:2], line[2], line[4], line[5], line[6]
+            so = side[k] * (origin[:, :2] @ n + off)
+            sp = side[k] * (pos[:, :2] @ n + off)
+            far = (so > 0) & (sp < -_OVER_BEYOND_M)
+            if not far.any():
+                continue
+            f = so[far] / (so[far] - sp[far])
+            cross = origin[far] + f[:, None] * (pos[far] - origin[far])
+            along = cross[:, :2] @ np.array([-n[1], n[0]])
+            over = (cross[:, 2] > top + 0.05) & (cross[:, 2] < top + _OVER_M) & (along > u0) & (along < u1)
+            cells = max(int(np.ceil((u1 - u0) / _FACE_CELL_M)), 1)
+            hit = np.unique(np.minimum(((along[over] - u0) / _FACE_CELL_M).astype(np.int64), cells - 1))
+            out[k] = len(hit) / cells
+        return out
+
+    def _wall_objects(self, vmap: VoxelMap | None = None) -> dict[int, int]:
+        """Per confirmed wall, the wall object it is part of (the smallest wall id of its group), as the
+        simulator's truth has one instance per wall across the building, both faces and its openings:
+        - stretches of one face (parallel within `_WALL_LINE_DEG`, the shorter's middle within `_COPLANAR_M` of
+          the longer's line, any gap along it: a door, a stretch hidden) are one wall;
+        - so are the two faces of one wall: parallel, at most `wall_thickness_m` apart, each behind the other as
+          seen from its own side (the sensor stood in neither's thickness);
+        - a face at most `_FURNITURE_WIDTH_M` wide standing `_FURNITURE_M` in front of a longer wall beside or
+          behind it, both seen from that side, is a bookcase's or a cabinet's front: no wall object (labels stay);
+        - with the map (`vmap`, at the end of a run), so is a face the sensor saw over: rays crossing its plane just
+          over its top, within its width, to returns behind it (`_seen_over`): a wall reaching the ceiling hides
+          what stands behind it there, a bookcase standing free in a hall does not."""
+        if not self.cfg.wall_objects or not self.wall_line:
+            return {}
+        ids = list(self.wall_line)
+        ln = np.array([self.wall_line[w] for w in ids])
+        normal, offset, z, u = ln[:, :2], ln[:, 2], ln[:, 3:5], ln[:, 5:7]
+        side = np.array([self._sensor_side(w, ln[k]) for k, w in enumerate(ids)])  # one iteration per wall
+        length = u[:, 1] - u[:, 0]
+        direction = np.c_[-normal[:, 1], normal[:, 0]]
+        centre = direction * u.mean(axis=1)[:, None] - normal * offset[:, None]
+        d = centre @ normal.T + offset[None, :]  # d[i, j]: i's middle off j's line (along j's normal)
+        longer = length[None, :] >= length[:, None]  # [i, j]: j is the longer (its direction measured better)
+        parallel = np.abs(normal @ normal.T) > np.cos(np.radians(_WALL_LINE_DEG))
+        z_overlap = (np.minimum(z[:, None, 1], z[None, :, 1]) - np.maximum(z[:, None, 0], z[None, :, 0])) > 0
+        ends = np.stack(
+            [
+                centre + direction * (u[:, :1] - u.mean(1)[:, None]),
+                centre + direction * (u[:, 1:] - u.mean(1)[:, None]),
+            ],
+            1,
+        )
+        proj = np.einsum("ikc,jc->ijk", ends, direction)  # i's ends along j's line
+        gap = np.maximum(proj.min(2) - u[None, :, 1], u[None, :, 0] - proj.max(2))
+        pair = parallel & z_overlap & longer  # [i, j], measured on j's line
+        in_front = side[None, :] * d  # > 0: i stands on j's sensor side (0: unknown)
+        behind = side[:, None] * d.T < 0  # j stands behind i as seen from i's sensor side
+        front = pair & behind & (in_front > _FURNITURE_M[0]) & (in_front < _FURNITURE_M[1])
+        front &= (
+            (length[:, None] <= _FURNITURE_WIDTH_M) & (gap < _WALL_JOIN_GAP_M) & (length[None, :] > length[:, None])
+        )
+        furniture = front.any(axis=1)
+        if vmap is not None:
+            furniture |= self._seen_over(vmap, ln, side) > _OVER_SHARE
+        coplanar = pair & (np.abs(d) < _COPLANAR_M)
+        # each behind the other from its own side: i behind j from j's side, j behind i from i's
+        faces = pair & behind & (in_front < 0) & (-in_front <= self.cfg.wall_thickness_m)
+        link = (coplanar | faces) & ~furniture[:, None] & ~furniture[None, :]
+        a, b = np.nonzero(link)
+        n = len(ids)
+        _, group = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+        key = np.full(group.max() + 1, np.iinfo(np.int64).max)
+        np.minimum.at(key, group, np.array(ids, np.int64))
+        # each group's span along its longest wall's line: short groups are furniture's faces, not walls
+        lead = np.full(group.max() + 1, -1, np.int64)
+        order = np.argsort(length)
+        lead[group[order]] = order  # the longest last: it stays
+        along = proj[np.arange(n), lead[group]]  # (n, 2): each wall's ends along its group's lead line
+        lo, hi = np.full(len(lead), np.inf), np.full(len(lead), -np.inf)
+        np.minimum.at(lo, group, along.min(axis=1))
+        np.maximum.at(hi, group, along.max(axis=1))
+        short = (hi - lo < _WALL_OBJECT_M)[group]
+        return {w: int(key[g]) for w, g, f in zip(ids, group, furniture | short, strict=True) if not f}
 
     def _facades(self, walls: dict[int, list[_Piece]]) -> dict[int, list[_Piece]]:
         """Outdoors, walls joined into the facade they belong to (for their outline): a wall whose ends lie
@@ -1198,8 +1311,8 @@ class StructureModel:
 
     def object_keys(self, n: int) -> np.ndarray:
         """Per map row below `n`: the element whose object the voxel takes (a slab, column or beam whose class
-        the fusion gave it), -1 where none (no floor found, outdoors, off the elements, or the network's
-        confident label stood)."""
+        the fusion gave it; a wall piece's wall object, `_wall_objects`), -1 where none (no floor found, outdoors,
+        off the elements, an opening's or a furniture face's voxel, or the network's confident label stood)."""
         keys = np.full(n, -1, np.int64)
         if self.outdoor or not self.has_floor:
             return keys
@@ -1207,6 +1320,12 @@ class StructureModel:
         elem, cls = self.elem[:m], self.kind_cls[:m]
         on = (elem > 0) & OBJECT_CLASSES[cls] & (self.fused[:m] == cls)
         keys[:m][on] = elem[on]
+        if self.wall_object:  # a wall piece's voxel shows its wall's object (an opening's own element is not one)
+            lut = np.full(self.next_id + 1, -1, np.int64)
+            pids = np.fromiter(self.wall_of_piece, np.int64, len(self.wall_of_piece))
+            lut[pids] = [self.wall_object.get(w, -1) for w in self.wall_of_piece.values()]
+            wall = (elem > 0) & (cls == SemanticClass.WALL) & (self.fused[:m] == cls)
+            keys[:m][wall] = lut[np.minimum(elem[wall], self.next_id)]
         return keys
 
     def warning(self) -> str | None:

@@ -228,7 +228,7 @@ def find_openings(model: StructureModel, vmap: VoxelMap, sight: Sightlines) -> l
         top = min(float(np.percentile(h, 99)), storey[1] - zf)
         cell = cfg.opening_cell_m
         u0 = float(u.min())
-        nu, nh = int((u.max() - u0) / cell) + 1, max(int(top / cell), 1)
+        nu, nh = int(np.floor((u.max() - u0) / cell + 1e-6)) + 1, max(int(top / cell), 1)  # as the cells below
         ok = (h >= 0) & (h < nh * cell)
         occ = np.zeros((nu, nh), bool)
         occ[np.floor((u[ok] - u0) / cell + 1e-6).astype(np.int64), np.floor(h[ok] / cell + 1e-6).astype(np.int64)] = (
