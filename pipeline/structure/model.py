@@ -37,7 +37,13 @@ from aftershock.pipeline.structure.columns import fit_beams, fit_columns
 from aftershock.pipeline.structure.debris import fit_debris
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
 from aftershock.pipeline.structure.lookup import member, sorted_union
-from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
+from aftershock.pipeline.structure.openings import (
+    Opening,
+    Sightlines,
+    find_openings,
+    leaf_columns,
+    mark_openings,
+)
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 
@@ -513,6 +519,14 @@ class StructureModel:
             self.elem[mine] = -1
             self.kind_cls[mine] = UNLABELLED
         self.openings = find_openings(self, vmap, self.sight)
+        leaves = leaf_columns(self, vmap, self.openings) if self.cfg.door_leaf_columns else {}
+        for cid, door in leaves.items():  # a door's open leaf taken for a column: its voxels go to the door
+            self.columns.pop(cid, None)
+            rows = np.flatnonzero(self.elem[: self.n] == cid)
+            door.rows = np.union1d(door.rows, rows)
+        if leaves:
+            for tile in self.tiles:  # one iteration per tile of the map
+                tile.elements = [e for e in tile.elements if e not in leaves]
         mark_openings(self, self.openings)
 
     def _add_rows(self, vmap: VoxelMap, rows: np.ndarray) -> None:
