@@ -191,5 +191,7 @@ def test_an_open_door_leaf_beside_its_doorway_is_no_column_and_a_column_in_the_r
     assert Kind.DOOR in [e.kind for e in model.elements(vmap)]
     assert np.mean(got[leaf] == C.COLUMN) < 0.05
     assert np.mean(got[leaf] == C.DOOR) > 0.5  # the door's leaf takes them
+    keys = model.object_keys(model.n)[rows[leaf]][got[leaf] == C.DOOR]
+    assert np.all(keys >= 0) and len(np.unique(keys)) == 1  # and stays one object (one panel)
     assert np.mean(got[column] == C.COLUMN) > 0.8
     assert len([e for e in model.elements(vmap) if e.kind is Kind.COLUMN]) == 1

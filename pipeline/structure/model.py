@@ -324,6 +324,7 @@ class StructureModel:
         self.support_counts: np.ndarray | None = None  # voxels per element id at the last fusion (see `_support`)
         self.sight = Sightlines()  # where the sensor stood for each voxel (`observe`), for the openings
         self.openings: list[Opening] = []
+        self.leaf_rows: dict[int, np.ndarray] = {}  # per column found to be a door's open leaf: its voxels
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -520,10 +521,12 @@ class StructureModel:
             self.kind_cls[mine] = UNLABELLED
         self.openings = find_openings(self, vmap, self.sight)
         leaves = leaf_columns(self, vmap, self.openings) if self.cfg.door_leaf_columns else {}
+        self.leaf_rows = {}
         for cid, door in leaves.items():  # a door's open leaf taken for a column: its voxels go to the door
             self.columns.pop(cid, None)
             rows = np.flatnonzero(self.elem[: self.n] == cid)
             door.rows = np.union1d(door.rows, rows)
+            self.leaf_rows[cid] = rows  # still one object (a leaf is one panel)
         if leaves:
             for tile in self.tiles:  # one iteration per tile of the map
                 tile.elements = [e for e in tile.elements if e not in leaves]
@@ -1221,6 +1224,9 @@ class StructureModel:
         elem, cls = self.elem[:m], self.kind_cls[:m]
         on = (elem > 0) & OBJECT_CLASSES[cls] & (self.fused[:m] == cls)
         keys[:m][on] = elem[on]
+        for cid, rows in self.leaf_rows.items():  # one iteration per door leaf once taken for a column
+            r = rows[rows < m]
+            keys[r[(cls[r] == SemanticClass.DOOR) & (self.fused[r] == SemanticClass.DOOR)]] = cid
         return keys
 
     def warning(self) -> str | None:
