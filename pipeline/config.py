@@ -457,6 +457,7 @@ class StructureConfig(_Section):
     opening_max_width_m: Positive = 3.5  # wall pieces this far apart along one line may bound one opening
     opening_min_seen: Fraction = 0.3  # the sensor saw through this share of an opening's width (not a shadow)
     opening_depth_m: Positive = 0.35  # an opening's voxels (frames, glass) lie at most this far behind the face
+    door_leaf_columns: bool = True  # a column hung at a door's jamb, square off the wall, is the door's open leaf
     # debris (pipeline.structure.debris): masses on a floor slab on no element, that no furniture is shaped like
     debris: bool = True
     debris_max_height_m: Positive = 1.2  # a mass reaching higher (95th percentile) stands: furniture, a wall

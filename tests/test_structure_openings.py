@@ -159,3 +159,39 @@ def test_a_window_takes_what_stands_in_its_reveal_and_the_face_around_it_stays_w
     assert around.sum() > 100
     assert np.all(got[around] == C.WALL), int(np.sum(got[around] == C.WINDOW))
     assert np.mean(got[truth == C.WINDOW] == C.WINDOW) > 0.9
+
+
+def _box(x0: float, x1: float, y0: float, y1: float, z1: float) -> np.ndarray:
+    """The four upright faces of a box standing on the floor, `z1` high."""
+    u, z = _grid(x0, x1, 0.05, z1)
+    v, w = _grid(y0, y1, 0.05, z1)
+    faces = [np.c_[u, np.full_like(u, y0), z], np.c_[u, np.full_like(u, y1), z]]
+    return np.concatenate([*faces, np.c_[np.full_like(v, x0), v, w], np.c_[np.full_like(v, x1), v, w]])
+
+
+def _leaf_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The room with its door's leaf open square off the south wall from the west jamb, seen 0.35 m thick
+    (both faces and drift) and 0.8 m long, and a free column 0.45 m square in the room's middle."""
+    pts, truth = scene()
+    leaf = _box(DOOR[0] - 0.35, DOOR[0], 0.2, 1.0, 2.05)  # beside the gap (hinged at its jamb)
+    column = _box(5.8, 6.25, 2.8, 3.25, 2.95)
+    pts = np.concatenate([pts, leaf, column])
+    truth = np.r_[truth, np.full(len(leaf), C.DOOR, np.uint16), np.full(len(column), C.COLUMN, np.uint16)]
+    n = len(pts)
+    return pts, truth, np.arange(n - len(leaf) - len(column), n - len(column)), np.arange(n - len(column), n)
+
+
+def test_an_open_door_leaf_beside_its_doorway_is_no_column_and_a_column_in_the_room_stays_one() -> None:
+    pts, _, leaf, column = _leaf_scene()
+    model, vmap, rows = _run(pts, StructureConfig(door_leaf_columns=False))
+    got = vmap.class_ids[rows]
+    assert np.mean(got[leaf] == C.COLUMN) > 0.5  # the free-column test alone takes the leaf for a column
+    model, vmap, rows = _run(pts)
+    got = vmap.class_ids[rows]
+    assert Kind.DOOR in [e.kind for e in model.elements(vmap)]
+    assert np.mean(got[leaf] == C.COLUMN) < 0.05
+    assert np.mean(got[leaf] == C.DOOR) > 0.5  # the door's leaf takes them
+    keys = model.object_keys(model.n)[rows[leaf]][got[leaf] == C.DOOR]
+    assert np.all(keys >= 0) and len(np.unique(keys)) == 1  # and stays one object (one panel)
+    assert np.mean(got[column] == C.COLUMN) > 0.8
+    assert len([e for e in model.elements(vmap) if e.kind is Kind.COLUMN]) == 1

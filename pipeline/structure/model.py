@@ -37,7 +37,13 @@ from aftershock.pipeline.structure.columns import fit_beams, fit_columns
 from aftershock.pipeline.structure.debris import fit_debris
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
 from aftershock.pipeline.structure.lookup import member, sorted_union
-from aftershock.pipeline.structure.openings import Opening, Sightlines, find_openings, mark_openings
+from aftershock.pipeline.structure.openings import (
+    Opening,
+    Sightlines,
+    find_openings,
+    leaf_columns,
+    mark_openings,
+)
 from aftershock.pipeline.types import Frame
 from aftershock.pipeline.voxel_map import KeyTable, VoxelMap, pack_keys
 
@@ -327,6 +333,7 @@ class StructureModel:
         self.support_counts: np.ndarray | None = None  # voxels per element id at the last fusion (see `_support`)
         self.sight = Sightlines()  # where the sensor stood for each voxel (`observe`), for the openings
         self.openings: list[Opening] = []
+        self.leaf_rows: dict[int, np.ndarray] = {}  # per column found to be a door's open leaf: its voxels
 
     # ------------------------------------------------------------------------------------------ bookkeeping
 
@@ -523,6 +530,16 @@ class StructureModel:
             self.elem[mine] = -1
             self.kind_cls[mine] = UNLABELLED
         self.openings = find_openings(self, vmap, self.sight)
+        leaves = leaf_columns(self, vmap, self.openings) if self.cfg.door_leaf_columns else {}
+        self.leaf_rows = {}
+        for cid, door in leaves.items():  # a door's open leaf taken for a column: its voxels go to the door
+            self.columns.pop(cid, None)
+            rows = np.flatnonzero(self.elem[: self.n] == cid)
+            door.rows = np.union1d(door.rows, rows)
+            self.leaf_rows[cid] = rows  # still one object (a leaf is one panel)
+        if leaves:
+            for tile in self.tiles:  # one iteration per tile of the map
+                tile.elements = [e for e in tile.elements if e not in leaves]
         mark_openings(self, self.openings)
 
     def _add_rows(self, vmap: VoxelMap, rows: np.ndarray) -> None:
@@ -1326,6 +1343,9 @@ class StructureModel:
             lut[pids] = [self.wall_object.get(w, -1) for w in self.wall_of_piece.values()]
             wall = (elem > 0) & (cls == SemanticClass.WALL) & (self.fused[:m] == cls)
             keys[:m][wall] = lut[np.minimum(elem[wall], self.next_id)]
+        for cid, rows in self.leaf_rows.items():  # one iteration per door leaf once taken for a column
+            r = rows[rows < m]
+            keys[r[(cls[r] == SemanticClass.DOOR) & (self.fused[r] == SemanticClass.DOOR)]] = cid
         return keys
 
     def warning(self) -> str | None:

@@ -50,6 +50,7 @@ _LEAF_MIN_VOXELS: Final = 10
 _LEAF_EXTRA_M: Final = 0.4  # a leaf reaches this much farther than the gap is wide (frames and its edge narrow the gap)
 _LEAF_ON_SHARE: Final = 0.5  # of the tall cells near a jamb, this share on one line at least (both faces seen)
 _JAMB_M: Final = 0.15  # a door's frame and the leaf's edge fill the grid's cells this far into its gap
+_LEAF_EDGE_M: Final = 0.6  # a leaf seen edge-on is at most this wide (a few cm of panel, both faces and drift)
 
 
 @dataclass(slots=True)
@@ -409,6 +410,34 @@ def _wide_wall_pieces(model: StructureModel, width: float) -> np.ndarray:
 _KEEP: Final = np.array(
     [SemanticClass.FLOOR, SemanticClass.CEILING, SemanticClass.COLUMN, SemanticClass.BEAM, SemanticClass.GROUND]
 )
+
+
+def leaf_columns(model: StructureModel, vmap: VoxelMap, openings: list[Opening]) -> dict[int, Opening]:
+    """The columns that are a door's open leaf, by id, with their door: hung at a jamb (their near end within
+    `_LEAF_REACH_M` of it, their far end within a leaf's width, `door_max_width_m`), standing square off the wall
+    (deeper off it than wide along it) and no wider along it than a leaf seen edge-on. A column beside a doorway
+    stands in or along the wall, not out of it from the jamb."""
+    n = model.n
+    ids = np.fromiter(model.columns, np.int64, len(model.columns))
+    doors = [op for op in openings if op.kind is Kind.DOOR]
+    if not len(ids) or not doors:
+        return {}
+    rows = np.flatnonzero(np.isin(model.elem[:n], ids))
+    xy = vmap.positions[rows, :2].astype(np.float64)
+    elem = model.elem[rows]
+    out: dict[int, Opening] = {}
+    for op in doors:  # one iteration per door
+        t = np.array([-op.normal[1], op.normal[0]])
+        uu, dd = xy @ t, xy @ op.normal + op.offset
+        for jamb in op.u:  # one iteration per jamb
+            r = np.hypot(uu - jamb, dd)
+            for cid in np.unique(elem[r < model.cfg.door_max_width_m]).tolist():  # the columns near it
+                mine = elem == cid
+                wide, deep = np.ptp(uu[mine]), np.ptp(dd[mine])
+                hung = r[mine].min() < _LEAF_REACH_M and r[mine].max() < model.cfg.door_max_width_m
+                if hung and wide <= _LEAF_EDGE_M and deep > wide:
+                    out.setdefault(int(cid), op)
+    return out
 
 
 def mark_openings(model: StructureModel, openings: list[Opening]) -> np.ndarray:
