@@ -387,7 +387,9 @@ def _set_up(
     if cfg.structure.enabled and cfg.label.oracle != "classes":  # the true classes leave nothing to fuse
         run.structure = StructureModel(cfg.structure, environment, run.vmap.voxel_size)
         hand_structure(labeller, run.structure)  # weights that read its evidence see it as of the previous scan
-        if cfg.cluster.structure_objects:  # voxels on a slab, column or beam take its object (geometry decides)
+        # voxels on a slab, column or beam take its object (geometry decides); not where the truth stands in for
+        # the objects (`--oracle objects` measures what perfect embeddings give the clustering)
+        if cfg.cluster.structure_objects and cfg.label.oracle != "objects":
             run.clusterer.owner = run.structure.object_keys
     if labeller.name != FALLBACK_LABELLER and not isinstance(labeller, TruthStandIn):  # the baseline learnt nothing
         run.distribution = DistributionCheck(Reference.load(), notice)
