@@ -98,3 +98,18 @@ def rrd_verify(path: str | Path) -> subprocess.CompletedProcess:
 def rrd_print(path: str | Path) -> subprocess.CompletedProcess:
     """`rerun rrd print PATH`: what a recording holds, read as far as it goes."""
     return rerun_rrd("print", path)
+
+
+def record_structure(path: Path, elements: list) -> Recording:
+    """The structure layer of `elements` (pipeline.structure.elements.Element) written to an .rrd at `path`, read
+    back: what a viewer would get from `sinks.structure_layer.log_structure`."""
+    import rerun as rr
+
+    from aftershock.sinks.structure_layer import log_structure
+
+    rec = rr.RecordingStream("aftershock-test")
+    rec.save(str(path))
+    log_structure(rec, elements)
+    rec.flush()
+    rec.disconnect()
+    return read_rrd(path)

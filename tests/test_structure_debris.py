@@ -148,18 +148,9 @@ def test_every_kind_of_element_has_its_class() -> None:
 
 
 def test_debris_goes_to_the_recording_as_boxes_under_world_structure_debris(tmp_path: Path) -> None:
-    import rerun as rr
-    from rrd_read import read_rrd
-
-    from aftershock.sinks.structure_layer import log_structure
+    from rrd_read import record_structure
 
     model, vmap, _, _ = _seen([(pile(6.5, 5.5), C.DEBRIS)])
-    rec = rr.RecordingStream("aftershock-test")
-    path = tmp_path / "structure.rrd"
-    rec.save(str(path))
-    log_structure(rec, model.elements(vmap))
-    rec.flush()
-    rec.disconnect()
-    got = read_rrd(path)
+    got = record_structure(tmp_path / "structure.rrd", model.elements(vmap))
     assert "world/structure/debris" in got.under("world/structure")
     assert any("Boxes3D" in c for c in got.components("world/structure/debris"))

@@ -129,20 +129,11 @@ def test_an_opening_setting_out_of_range_names_itself(value: str) -> None:
 
 
 def test_the_openings_go_to_the_recording_as_outlines_in_their_walls(tmp_path: Path) -> None:
-    import rerun as rr
-    from rrd_read import read_rrd
-
-    from aftershock.sinks.structure_layer import log_structure
+    from rrd_read import record_structure
 
     pts, _ = scene()
     model, vmap, _ = _run(pts)
-    rec = rr.RecordingStream("aftershock-test")
-    path = tmp_path / "structure.rrd"
-    rec.save(str(path))
-    log_structure(rec, model.elements(vmap))
-    rec.flush()
-    rec.disconnect()
-    got = read_rrd(path)
+    got = record_structure(tmp_path / "structure.rrd", model.elements(vmap))
     assert "world/structure/openings" in got.under("world/structure")
     assert any("LineStrips3D:strips" in c for c in got.components("world/structure/openings"))
 
