@@ -10,10 +10,13 @@ import warnings
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Final
 
 import numpy as np
 import pyarrow as pa
 from rerun.chunk import RrdReader
+
+ROW_ID: Final = "rerun.controls.RowId"
 
 
 @dataclass
@@ -38,13 +41,20 @@ class Recording:
         return {n for b in self.static.get(entity, []) + self.temporal.get(entity, []) for n in b.schema.names}
 
     def rows(self, entity: str, component: str, *, static: bool = False) -> list:
-        """The logged values of one component, one entry per row (Python lists), in log order."""
+        """The logged values of one component, one entry per row (Python lists), in log order: by row id, as
+        the viewer orders them. The file's chunk order is not log order: rows of one entity with different
+        components go to different chunks, which one flush writes in no set order."""
         batches = (self.static if static else self.temporal).get(entity, [])
-        out: list = []
+        keyed: list[tuple[bytes, int, object]] = []
         for b in batches:
-            if component in b.schema.names:
-                out.extend(v for v in b.column(component).to_pylist() if v is not None)
-        return out
+            if component not in b.schema.names:
+                continue
+            row_ids = b.column(ROW_ID).to_pylist() if ROW_ID in b.schema.names else [b""] * b.num_rows
+            for row_id, v in zip(row_ids, b.column(component).to_pylist(), strict=True):
+                if v is not None:
+                    keyed.append((row_id, len(keyed), v))
+        keyed.sort(key=lambda k: (k[0], k[1]))  # row ids are big-endian TUIDs: their bytes sort in time order
+        return [v for _, _, v in keyed]
 
     def times(self, entity: str, component: str, timeline: str) -> np.ndarray:
         """The time of each row of `component` on `timeline` (int64: sequence numbers or ns)."""
