@@ -429,6 +429,11 @@ class StructureConfig(_Section):
     # ... and the wall one clean plane on both sides; with this on, one side may be unseen (nothing there: a wall's
     # end, an opening) if the face is flat. Off: it also takes wall ends seen thick (docs/benchmarks/structure.md)
     engaged_one_sided: bool = False
+    # a beam is geometry's to find: the network's beam where the structure found none is, once every tile was
+    # looked at, a wall's head beside a wall, else clutter (a lamp); columns likewise, off: on validation it
+    # cost as much as it gave (docs/decisions.md)
+    beams_need_element: bool = True
+    columns_need_element: bool = False
     beam_max_depth_m: Positive = 0.8  # beams hang at most this far under a ceiling ...
     beam_min_length_m: Positive = 1.2  # ... run at least this long ...
     beam_max_width_m: Positive = 0.8  # ... and are at most this wide, and not within this of a wall's plane

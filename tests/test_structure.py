@@ -454,6 +454,41 @@ def test_a_beam_is_built_up_to_the_slab_and_lamps_hanging_under_it_are_not_beams
         assert np.mean(vmap.class_ids[rows][truth == C.CLUTTER] == C.BEAM) < 0.05
 
 
+@pytest.mark.parametrize("need_element", [True, False])
+def test_a_beam_the_network_gives_where_geometry_found_none_is_a_walls_head_or_clutter(need_element: bool) -> None:
+    # the network calls "beam" the room's beam, three pendant lamps (1.6 m housings 0.2 m under the ceiling) and
+    # a curtain box on the wall at y = 8 (0.6 m long, 0.1 m proud of it, under the ceiling): geometry finds the beam
+    # only (the box is too short for one)
+    sensor = np.array([5.0, 5.0, 1.0])
+    pts, truth = room(x1=10.0, y1=8.0)
+    boxes = [(np.array([x, 1.9, 2.55]), np.array([x + 1.6, 2.15, 2.8])) for x in (1.0, 4.0, 7.0)]
+    lamps = np.concatenate([_bar(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]) for lo, hi in boxes])
+    u, z = _grid(4.0, 4.6, 2.75, 2.9)
+    curtain_box = np.c_[u, np.full_like(u, 7.9), z]
+    pts = np.concatenate([pts, lamps, curtain_box])
+    part = np.r_[truth, np.full(len(lamps), C.CLUTTER, np.uint16), np.full(len(curtain_box), C.WALL, np.uint16)]
+    lamp = np.r_[np.zeros(len(truth), bool), np.ones(len(lamps), bool), np.zeros(len(curtain_box), bool)]
+    head = np.r_[np.zeros(len(truth) + len(lamps), bool), np.ones(len(curtain_box), bool)]
+    beam = (np.array([0.5, 4.35, 2.6]), np.array([9.5, 4.65, 3.0]))  # the room's, built up to the slab
+    seen = _visible(pts, sensor, [*boxes, beam])
+    pts, part, lamp, head = pts[seen], part[seen], lamp[seen], head[seen]
+    net = np.where((part == C.BEAM) | lamp | head, C.BEAM, part).astype(np.uint16)
+    vmap, rows = _map(pts, net)
+    model = StructureModel(StructureConfig(beams_need_element=need_element), Environment.INDOOR, vmap.voxel_size)
+    model.observe(vmap, sensor)
+    model.update(vmap, sensor_z=float(sensor[2]))
+    model.finish(vmap)
+    model.apply(vmap)
+    got = vmap.class_ids[rows]
+    assert [e for e in model.elements(vmap) if e.kind is Kind.BEAM], "the room's beam is found"
+    assert np.mean(got[part == C.BEAM] == C.BEAM) > 0.9
+    if need_element:
+        assert np.mean(got[lamp] == C.CLUTTER) > 0.9
+        assert np.mean(got[head] == C.WALL) > 0.9
+    else:  # the network's word stands under the ceiling: the rule, not the set-up, takes the lamps off the beams
+        assert np.mean(got[lamp] == C.BEAM) > 0.5
+
+
 def _run_seen(vmap: VoxelMap, origin: np.ndarray) -> StructureModel:
     """`_run` with the sensor's position known (the stream tells the model where each scan was taken)."""
     model = StructureModel(StructureConfig(), Environment.INDOOR, vmap.voxel_size)

@@ -1285,6 +1285,13 @@ class StructureModel:
             else:
                 under = np.zeros(len(rows), bool)
             out[free & (c == C.BEAM) & ~under] = C.CLUTTER
+            if self.final:  # every band and tile looked at: a beam or column geometry did not find is none
+                unfound = free & (out == UNLABELLED)
+                unfound &= ((c == C.BEAM) & self.cfg.beams_need_element) | (
+                    (c == C.COLUMN) & self.cfg.columns_need_element
+                )
+                hit = np.flatnonzero(unfound)
+                out[hit] = np.where(self._near_wall(vmap.positions[rows[hit]]), C.WALL, C.CLUTTER)
         # A network label the structure rules out: the new class gets at most the probability left over.
         overruled = free & (out != UNLABELLED)
         score[overruled] = 1.0 - self.net_score[rows[overruled]]
