@@ -438,6 +438,7 @@ class StructureConfig(_Section):
     beam_min_length_m: Positive = 1.2  # ... run at least this long ...
     beam_max_width_m: Positive = 0.8  # ... and are at most this wide, and not within this of a wall's plane
     beam_wall_reach_m: Positive = 0.3  # (a wall's head seen without its lower part)
+    beams_recheck_walls: bool = True  # ... checked again at the end against every wall found by then
     default_story_m: Positive = 2.8  # a story's height where no ceiling was found
     min_story_m: Positive = 2.0  # a floor this close above another is furniture (desks, beds), not a story's slab
     ground_cell_m: Positive = 1.0  # outdoors: the ground's height per cell of this size ...

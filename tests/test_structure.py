@@ -489,6 +489,25 @@ def test_a_beam_the_network_gives_where_geometry_found_none_is_a_walls_head_or_c
         assert np.mean(got[lamp] == C.BEAM) > 0.5
 
 
+def test_a_cornice_along_a_wall_is_no_beam_even_where_its_tile_was_fitted_before_the_wall() -> None:
+    # a strip 0.1 m proud of the wall at y = 8 just under the ceiling, along most of the wall (the network calls it
+    # beam): its tiles are fitted before the wall's, so only the end-of-run check against every wall catches it
+    sensor = np.array([5.0, 5.0, 1.0])
+    pts, truth = room(x1=10.0, y1=8.0)
+    u, z = _grid(1.0, 9.0, 2.75, 2.9)
+    cornice = np.c_[u, np.full_like(u, 7.9), z]
+    pts = np.concatenate([pts, cornice])
+    on_cornice = np.r_[np.zeros(len(truth), bool), np.ones(len(cornice), bool)]
+    truth = np.r_[truth, np.full(len(cornice), C.WALL, np.uint16)]
+    seen = _visible(pts, sensor, [(np.array([0.5, 4.35, 2.6]), np.array([9.5, 4.65, 3.0]))])
+    pts, truth, on_cornice = pts[seen], truth[seen], on_cornice[seen]
+    vmap, rows = _map(pts, np.where(on_cornice, C.BEAM, truth).astype(np.uint16))
+    model = _run_seen(vmap, sensor)
+    beams = [e for e in model.elements(vmap) if e.kind is Kind.BEAM]
+    assert beams and all(abs((e.lo[1] + e.hi[1]) / 2 - 4.5) < 0.3 for e in beams), [(e.lo, e.hi) for e in beams]
+    assert np.mean(vmap.class_ids[rows][on_cornice] == C.WALL) > 0.9
+
+
 def _run_seen(vmap: VoxelMap, origin: np.ndarray) -> StructureModel:
     """`_run` with the sensor's position known (the stream tells the model where each scan was taken)."""
     model = StructureModel(StructureConfig(), Environment.INDOOR, vmap.voxel_size)

@@ -33,7 +33,7 @@ from scipy.sparse.csgraph import connected_components
 from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticClass
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
-from aftershock.pipeline.structure.columns import fit_beams, fit_columns
+from aftershock.pipeline.structure.columns import beams_along_walls, fit_beams, fit_columns
 from aftershock.pipeline.structure.debris import fit_debris
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
 from aftershock.pipeline.structure.lookup import member, sorted_union
@@ -466,6 +466,7 @@ class StructureModel:
         self.final = True
         self.update(vmap, float(np.median(self.sensor_z[: self.n])) if self.n else 0.0, finishing=True)
         self._refit_debris(vmap)
+        self._drop_wall_heads(vmap)
         self._find_openings(vmap)
         self.wall_object = self._wall_objects(vmap)
         self._fuse(vmap, np.arange(self.n, dtype=np.int64))
@@ -522,6 +523,22 @@ class StructureModel:
             storey = self.storey(centre, zs)
             if storey is not None:
                 fit_debris(self, vmap, i, self._tile_block(i), storey, zs)
+
+    def _drop_wall_heads(self, vmap: VoxelMap) -> None:
+        """Beams that lie along a wall found since their tile was fitted are that wall's head: dropped, their
+        voxels on no element (the fusion's rules then decide them)."""
+        if not self.cfg.beams_recheck_walls:
+            return
+        gone = beams_along_walls(self, vmap)
+        if not gone:
+            return
+        rows = np.flatnonzero(np.isin(self.elem[: self.n], np.asarray(gone, np.int64)))
+        self.elem[rows] = -1
+        self.kind_cls[rows] = UNLABELLED
+        for bid in gone:  # one iteration per beam dropped
+            self.beams.pop(bid, None)
+        for tile in self.tiles:  # one iteration per tile of the map
+            tile.elements = [e for e in tile.elements if e not in gone]
 
     def _find_openings(self, vmap: VoxelMap) -> None:
         """Windows and doors in the walls found (pipeline.structure.openings), their voxels taking their class."""
