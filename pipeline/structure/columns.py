@@ -380,29 +380,6 @@ def along_wall(model: StructureModel, i: int, xy: np.ndarray, reach_m: float) ->
     return float(best.mean()) if len(xy) else 0.0
 
 
-def beams_along_walls(model: StructureModel, vmap: VoxelMap) -> list[int]:
-    """The beams whose footprint lies mostly along a confirmed wall piece's line (`along_wall`'s test over every
-    confirmed piece, once every tile was refitted): a beam is fitted when its tile is, before the tiles around
-    found their walls, so a wall's head (a cornice on it) could pass for one."""
-    cfg = model.cfg
-    pieces = [model.pieces[q] for q in model.wall_of_piece if q in model.pieces]
-    out: list[int] = []
-    for bid in list(model.beams):  # one iteration per beam
-        rows = np.flatnonzero(model.elem[: model.n] == bid)
-        if not len(rows) or not pieces:
-            continue
-        xy = np.unique(np.floor(vmap.positions[rows, :2] / model.voxel), axis=0) * model.voxel + 0.5 * model.voxel
-        near = np.zeros(len(xy), bool)
-        for p in pieces:  # one iteration per confirmed wall piece
-            along = xy @ np.array([-p.normal[1], p.normal[0]])
-            if along.max() < p.u[0] - _WALL_END_M or along.min() > p.u[1] + _WALL_END_M:
-                continue
-            near |= np.abs(xy @ p.normal + p.offset) < cfg.beam_wall_reach_m
-        if near.mean() > 0.5:
-            out.append(bid)
-    return out
-
-
 def _slab_seen_over(
     model: StructureModel,
     vmap: VoxelMap,

@@ -33,7 +33,7 @@ from scipy.sparse.csgraph import connected_components
 from aftershock.pipeline.classes import NETWORK_CLASSES, UNLABELLED, SemanticClass
 from aftershock.pipeline.config import Environment, StructureConfig
 from aftershock.pipeline.damage.drift import bands_of_counts, ransac_plane
-from aftershock.pipeline.structure.columns import beams_along_walls, fit_beams, fit_columns
+from aftershock.pipeline.structure.columns import fit_beams, fit_columns
 from aftershock.pipeline.structure.debris import fit_debris
 from aftershock.pipeline.structure.elements import CLASS_OF, Element, Kind
 from aftershock.pipeline.structure.lookup import member, sorted_union
@@ -508,11 +508,7 @@ class StructureModel:
         if self.outdoor or not self.cfg.debris or not self.floors:
             return
         # all of them forgotten first: a tile's debris found before cut the parts of things around it apart
-        stale = np.flatnonzero(np.isin(self.elem[: self.n], np.fromiter(self.debris, np.int64, len(self.debris))))
-        self.elem[stale] = -1
-        self.kind_cls[stale] = UNLABELLED
-        for tile in self.tiles:  # one iteration per tile of the map
-            tile.elements = [e for e in tile.elements if e not in self.debris]
+        self._forget(set(self.debris))
         self.debris = {}
         for i, tile in enumerate(self.tiles):  # one iteration per tile of the map
             rows = tile.rows()
@@ -525,20 +521,30 @@ class StructureModel:
                 fit_debris(self, vmap, i, self._tile_block(i), storey, zs)
 
     def _drop_wall_heads(self, vmap: VoxelMap) -> None:
-        """Beams that lie along a wall found since their tile was fitted are that wall's head: dropped, their
-        voxels on no element (the fusion's rules then decide them)."""
-        if not self.cfg.beams_recheck_walls:
+        """Beams along a wall found since their tile was fitted (a beam is fitted with its tile, before the tiles
+        around have their walls): that wall's head, a cornice on it. Dropped, their voxels on no element (the
+        fusion's rules then decide them)."""
+        if not self.cfg.beams_recheck_walls or not self.beams:
             return
-        gone = beams_along_walls(self, vmap)
-        if not gone:
+        rows = np.flatnonzero(np.isin(self.elem[: self.n], np.fromiter(self.beams, np.int64, len(self.beams))))
+        cells = np.floor(vmap.positions[rows, :2] / self.voxel).astype(np.int64)
+        gone: set[int] = set()
+        for bid in list(self.beams):  # one iteration per beam
+            xy = (np.unique(cells[self.elem[rows] == bid], axis=0) + 0.5) * self.voxel  # its footprint
+            if len(xy) and self._near_wall(xy, self.cfg.beam_wall_reach_m).mean() > 0.5:
+                gone.add(bid)
+                del self.beams[bid]
+        self._forget(gone)
+
+    def _forget(self, ids: set[int]) -> None:
+        """Elements dropped: their voxels on no element, and out of their tiles' lists."""
+        if not ids:
             return
-        rows = np.flatnonzero(np.isin(self.elem[: self.n], np.asarray(gone, np.int64)))
-        self.elem[rows] = -1
-        self.kind_cls[rows] = UNLABELLED
-        for bid in gone:  # one iteration per beam dropped
-            self.beams.pop(bid, None)
+        stale = np.flatnonzero(np.isin(self.elem[: self.n], np.fromiter(ids, np.int64, len(ids))))
+        self.elem[stale] = -1
+        self.kind_cls[stale] = UNLABELLED
         for tile in self.tiles:  # one iteration per tile of the map
-            tile.elements = [e for e in tile.elements if e not in gone]
+            tile.elements = [e for e in tile.elements if e not in ids]
 
     def _find_openings(self, vmap: VoxelMap) -> None:
         """Windows and doors in the walls found (pipeline.structure.openings), their voxels taking their class."""
